@@ -1,0 +1,103 @@
+"""Time one DSAC update and compare its FLOP rate with a large matmul measured in the same run.
+
+    python benchmarks/bench_update.py [--encoder lsa] [--threads 1] [--humans 5] [--batch 128]
+
+Prints a markdown table: ms per update, GFLOP per update (counted by
+``torch.utils.flop_counter.FlopCounterMode``, which counts matmul-like ops only, so LSTM gate
+arithmetic and elementwise ops are excluded), the achieved GFLOP/s, the GFLOP/s of a float32
+1024x1024 @ 1024x1024 matmul on the same thread count, and their ratio (the fraction of the
+machine's achievable dense rate that the update reaches).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+import torch
+from torch.utils.flop_counter import FlopCounterMode
+
+from crowdplan.algos.dsac import DSAC, DSACConfig
+from crowdplan.nets.encoders import EncoderConfig
+
+
+def make_batch(batch: int, humans: int, seed: int = 0) -> dict[str, torch.Tensor]:
+    """A random replay batch with every human real."""
+    g = torch.Generator().manual_seed(seed)
+    mask = torch.ones(batch, humans, dtype=torch.bool)
+    return {
+        "robot": torch.randn(batch, 6, generator=g),
+        "humans": torch.randn(batch, humans, 7, generator=g),
+        "mask": mask,
+        "action": torch.randint(0, 81, (batch,), generator=g),
+        "reward": torch.randn(batch, generator=g),
+        "next_robot": torch.randn(batch, 6, generator=g),
+        "next_humans": torch.randn(batch, humans, 7, generator=g),
+        "next_mask": mask.clone(),
+        "done": (torch.rand(batch, generator=g) < 0.1).float(),
+    }
+
+
+def time_update(agent: DSAC, batch: dict[str, torch.Tensor], warmup: int, iters: int) -> float:
+    """Median-free plain mean: seconds per update over ``iters`` updates after ``warmup``."""
+    for _ in range(warmup):
+        agent.update(batch)
+    start = time.perf_counter()
+    for _ in range(iters):
+        agent.update(batch)
+    return (time.perf_counter() - start) / iters
+
+
+def count_update_flops(agent: DSAC, batch: dict[str, torch.Tensor]) -> int:
+    """FLOPs of one update (forward + backward of all networks) as counted by FlopCounterMode."""
+    with FlopCounterMode(display=False) as counter:
+        agent.update(batch)
+    return counter.get_total_flops()
+
+
+def matmul_gflops(n: int = 1024, iters: int = 20) -> float:
+    """Achieved GFLOP/s of an ``n x n @ n x n`` float32 matmul (best of three rounds)."""
+    a, b = torch.randn(n, n), torch.randn(n, n)
+    out = torch.empty(n, n)
+    for _ in range(3):
+        torch.mm(a, b, out=out)
+    best = float("inf")
+    for _ in range(3):
+        start = time.perf_counter()
+        for _ in range(iters):
+            torch.mm(a, b, out=out)
+        best = min(best, (time.perf_counter() - start) / iters)
+    return 2 * n**3 / best / 1e9
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--encoder", default="lsa", help="raw | rg | aw | sa | lsa")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    parser.add_argument("--batch", type=int, default=128)
+    parser.add_argument("--humans", type=int, default=5)
+    parser.add_argument("--warmup", type=int, default=10)
+    parser.add_argument("--iters", type=int, default=50)
+    args = parser.parse_args()
+
+    torch.set_num_threads(args.threads)
+    agent = DSAC(DSACConfig(batch_size=args.batch), EncoderConfig(name=args.encoder, max_humans=args.humans))
+    batch = make_batch(args.batch, args.humans)
+
+    seconds = time_update(agent, batch, args.warmup, args.iters)
+    gflop = count_update_flops(agent, batch) / 1e9
+    achieved = gflop / seconds
+    peak = matmul_gflops()
+
+    print(f"torch {torch.__version__}, {platform.processor() or platform.machine()}, "
+          f"threads={args.threads}, encoder={args.encoder}, batch={args.batch}, "
+          f"humans={args.humans}, {args.iters} updates after {args.warmup} warm-up\n")
+    print("| update ms | update GFLOP | achieved GFLOP/s | matmul GFLOP/s | ratio |")
+    print("|---:|---:|---:|---:|---:|")
+    print(f"| {seconds * 1e3:.2f} | {gflop:.3f} | {achieved:.1f} | {peak:.1f} | "
+          f"{achieved / peak:.3f} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,277 @@
+"""Discrete soft actor-critic (DSAC, SPEC section 5) with any encoder of ``crowdplan.nets``.
+
+Christodoulou's discrete SAC: with 81 actions the expectations over the policy are computed exactly
+as sums over actions, so neither the target nor the policy loss samples an action.
+
+- target  ``y = r + gamma (1 - done) sum_a' pi(a'|s') (min(Q1', Q2')(s', a') - alpha log pi(a'|s'))``
+- critic  ``MSE(Q1(s, a), y) + MSE(Q2(s, a), y)``
+- policy  ``mean_s sum_a pi(a|s) (alpha log pi(a|s) - min(Q1, Q2)(s, a))``
+- alpha   ``mean_s log_alpha (H(pi(.|s)) - H_target)``, ``H_target = scale * log(n_actions)``
+
+``done`` is 1 only when the episode *terminated* (collision or goal). A time-limit truncation is
+not a terminal state of the MDP, so its transition is stored with ``done = 0`` and the target
+bootstraps through it. ``gamma`` is the discount per environment step, used as given.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from crowdplan.nets.encoders import Encoder, EncoderConfig, make_encoder
+from crowdplan.nets.heads import PolicyHead, QHead
+
+
+@dataclass
+class DSACConfig:
+    """DSAC hyper-parameters (defaults: SPEC section 5 / the LSA-DSAC paper).
+
+    Attributes:
+        gamma: discount per environment step.
+        lr: Adam learning rate of the critic, the policy and the temperature.
+        batch_size: transitions per update (used by the training loop when sampling).
+        tau: Polyak coefficient of the target critic, ``target <- (1 - tau) target + tau critic``.
+        target_entropy_scale: target entropy = scale * log(n_actions).
+        init_alpha: initial temperature.
+        autotune_alpha: learn log(alpha) towards the target entropy; False keeps ``init_alpha``.
+        n_actions: size of the discrete action set (SPEC: 81).
+        updates_per_step: gradient updates per environment step (UTD ratio; used by the loop).
+        share_encoder: the policy reuses the critic's encoder (relation network / LSTM) instead of
+            having its own; the shared encoder is then trained by the critic loss only and the
+            policy sees its features detached (as in SAC-AE / DrQ). Default: separate encoders.
+        q_hidden: hidden sizes of each of the twin Q heads.
+        policy_hidden: hidden sizes of the policy head.
+    """
+
+    gamma: float = 0.95
+    lr: float = 3e-4
+    batch_size: int = 128
+    tau: float = 0.005
+    target_entropy_scale: float = 0.98
+    init_alpha: float = 0.2
+    autotune_alpha: bool = True
+    n_actions: int = 81
+    updates_per_step: float = 1.0
+    share_encoder: bool = False
+    q_hidden: tuple[int, ...] = (128, 128)
+    policy_hidden: tuple[int, ...] = (128, 128)
+
+
+class SoftQNetwork(nn.Module):
+    """Critic: encoder + twin Q heads. ``forward(robot, humans, mask) -> (q1, q2)``, (B, A) each."""
+
+    def __init__(self, encoder: Encoder, n_actions: int, hidden: tuple[int, ...]):
+        super().__init__()
+        self.encoder = encoder
+        self.head = QHead(encoder.out_dim, n_actions, hidden)
+
+    def forward(self, robot: Tensor, humans: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
+        features, _ = self.encoder(robot, humans, mask)
+        return self.head(features)
+
+
+class Actor(nn.Module):
+    """Policy: encoder + logits head. ``forward(...) -> (logits (B, A), attention (B, N) | None)``.
+
+    With ``detach_encoder`` the encoder (owned and trained by the critic) runs without gradient.
+    """
+
+    def __init__(
+        self, encoder: Encoder, n_actions: int, hidden: tuple[int, ...], detach_encoder: bool
+    ):
+        super().__init__()
+        self.encoder = encoder
+        self.head = PolicyHead(encoder.out_dim, n_actions, hidden)
+        self.detach_encoder = detach_encoder
+
+    def forward(self, robot: Tensor, humans: Tensor, mask: Tensor) -> tuple[Tensor, Tensor | None]:
+        with torch.set_grad_enabled(torch.is_grad_enabled() and not self.detach_encoder):
+            features, attention = self.encoder(robot, humans, mask)
+        return self.head(features), attention
+
+
+class DSAC:
+    """Discrete SAC agent: critic, target critic, policy, temperature and their optimisers.
+
+    Args:
+        config: hyper-parameters.
+        encoder_config: which encoder the critic and the policy use (each gets its own instance
+            unless ``config.share_encoder``).
+        seed: parameters are initialised from this seed without touching torch's global RNG.
+        device: where the networks live; batches passed to :meth:`update` must be there too.
+    """
+
+    def __init__(
+        self,
+        config: DSACConfig,
+        encoder_config: EncoderConfig,
+        seed: int = 0,
+        device: torch.device | str = "cpu",
+    ):
+        self.config = config
+        self.encoder_config = encoder_config
+        self.device = torch.device(device)
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            self.critic = SoftQNetwork(
+                make_encoder(encoder_config), config.n_actions, config.q_hidden
+            )
+            actor_encoder = (
+                self.critic.encoder if config.share_encoder else make_encoder(encoder_config)
+            )
+            self.actor = Actor(
+                actor_encoder, config.n_actions, config.policy_hidden, config.share_encoder
+            )
+        self.critic.to(self.device)
+        self.actor.to(self.device)
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        self.log_alpha = torch.tensor(
+            math.log(config.init_alpha), device=self.device, requires_grad=True
+        )
+        self.target_entropy = config.target_entropy_scale * math.log(config.n_actions)
+
+        actor_params = (
+            self.actor.head.parameters() if config.share_encoder else self.actor.parameters()
+        )
+        self.critic_optimizer = torch.optim.Adam(
+            self.critic.parameters(), lr=config.lr, fused=True
+        )
+        self.actor_optimizer = torch.optim.Adam(actor_params, lr=config.lr, fused=True)
+        self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=config.lr, fused=True)
+        self._critic_params = list(self.critic.parameters())
+        self._target_params = list(self.critic_target.parameters())
+        self.n_updates = 0
+
+    @property
+    def alpha(self) -> float:
+        """Current temperature."""
+        return float(self.log_alpha.exp())
+
+    @torch.no_grad()
+    def act(
+        self,
+        robot: Tensor,
+        humans: Tensor,
+        mask: Tensor,
+        deterministic: bool = False,
+        generator: torch.Generator | None = None,
+    ) -> tuple[Tensor, Tensor | None]:
+        """Choose one action per state.
+
+        Returns ``(actions (B,) int64, attention (B, N) or None)``: the argmax of the policy when
+        ``deterministic``, else a sample from it drawn with ``generator`` (reproducible).
+        """
+        logits, attention = self.actor(robot, humans, mask)
+        if deterministic:
+            return logits.argmax(dim=1), attention
+        probs = torch.softmax(logits, dim=1)
+        return torch.multinomial(probs, 1, generator=generator).squeeze(1), attention
+
+    def update(self, batch: dict[str, Tensor]) -> dict[str, float]:
+        """One gradient step on critic, policy and temperature from a replay batch.
+
+        ``batch`` holds the keys of :meth:`crowdplan.algos.buffer.ReplayBuffer.sample`. Returns
+        floats: ``qf1_loss, qf2_loss, qf_loss, actor_loss, alpha_loss, alpha, entropy, qf_mean``.
+        """
+        cfg = self.config
+        obs = (batch["robot"], batch["humans"], batch["mask"])
+        next_obs = (batch["next_robot"], batch["next_humans"], batch["next_mask"])
+        actions, rewards, dones = batch["action"], batch["reward"], batch["done"]
+        alpha = self.log_alpha.detach().exp()
+
+        with torch.no_grad():
+            next_log_pi = F.log_softmax(self.actor(*next_obs)[0], dim=1)
+            next_pi = next_log_pi.exp()
+            qf1_next_target, qf2_next_target = self.critic_target(*next_obs)
+            # soft state value: exact expectation over the actions (a sum, not a mean)
+            min_qf_next_target = (
+                next_pi * (torch.min(qf1_next_target, qf2_next_target) - alpha * next_log_pi)
+            ).sum(dim=1)
+            # dones are terminations only; truncated (timeout) transitions bootstrap
+            next_q_value = rewards + cfg.gamma * (1.0 - dones) * min_qf_next_target
+
+        qf1_values, qf2_values = self.critic(*obs)
+        qf1_a_values = qf1_values.gather(1, actions.unsqueeze(1)).squeeze(1)
+        qf2_a_values = qf2_values.gather(1, actions.unsqueeze(1)).squeeze(1)
+        qf1_loss = F.mse_loss(qf1_a_values, next_q_value)
+        qf2_loss = F.mse_loss(qf2_a_values, next_q_value)
+        qf_loss = qf1_loss + qf2_loss
+        self.critic_optimizer.zero_grad(set_to_none=True)
+        qf_loss.backward()
+        self.critic_optimizer.step()
+
+        # policy step against the (detached) Q-values of this batch's critic forward
+        log_pi = F.log_softmax(self.actor(*obs)[0], dim=1)
+        action_probs = log_pi.exp()
+        min_qf_values = torch.min(qf1_values, qf2_values).detach()
+        actor_loss = (action_probs * (alpha * log_pi - min_qf_values)).sum(dim=1).mean()
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        actor_loss.backward()
+        self.actor_optimizer.step()
+
+        entropy = -(action_probs.detach() * log_pi.detach()).sum(dim=1)
+        alpha_loss = (self.log_alpha * (entropy - self.target_entropy)).mean()
+        if cfg.autotune_alpha:
+            self.alpha_optimizer.zero_grad(set_to_none=True)
+            alpha_loss.backward()
+            self.alpha_optimizer.step()
+
+        with torch.no_grad():
+            # target <- target + tau (critic - target), one fused call over all tensors
+            torch._foreach_lerp_(self._target_params, self._critic_params, cfg.tau)
+        self.n_updates += 1
+
+        stats = torch.stack(
+            [
+                qf1_loss.detach(),
+                qf2_loss.detach(),
+                qf_loss.detach(),
+                actor_loss.detach(),
+                alpha_loss.detach(),
+                alpha,
+                entropy.mean(),
+                qf1_a_values.detach().mean(),
+            ]
+        ).tolist()
+        names = (
+            "qf1_loss",
+            "qf2_loss",
+            "qf_loss",
+            "actor_loss",
+            "alpha_loss",
+            "alpha",
+            "entropy",
+            "qf_mean",
+        )
+        return dict(zip(names, stats, strict=True))
+
+    def state_dict(self) -> dict[str, Any]:
+        """Everything needed to resume: networks, target, temperature and optimiser states."""
+        return {
+            "critic": self.critic.state_dict(),
+            "critic_target": self.critic_target.state_dict(),
+            "actor": self.actor.state_dict(),
+            "log_alpha": self.log_alpha.detach().clone(),
+            "critic_optimizer": self.critic_optimizer.state_dict(),
+            "actor_optimizer": self.actor_optimizer.state_dict(),
+            "alpha_optimizer": self.alpha_optimizer.state_dict(),
+            "n_updates": self.n_updates,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore what :meth:`state_dict` returned (same configs)."""
+        self.critic.load_state_dict(state["critic"])
+        self.critic_target.load_state_dict(state["critic_target"])
+        self.actor.load_state_dict(state["actor"])
+        with torch.no_grad():
+            self.log_alpha.copy_(state["log_alpha"])
+        self.critic_optimizer.load_state_dict(state["critic_optimizer"])
+        self.actor_optimizer.load_state_dict(state["actor_optimizer"])
+        self.alpha_optimizer.load_state_dict(state["alpha_optimizer"])
+        self.n_updates = int(state["n_updates"])

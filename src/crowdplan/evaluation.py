@@ -1,0 +1,287 @@
+"""The evaluation harness and the one place where metrics are defined (docs/metrics.md).
+
+Episodes run batched: up to ``batch_size`` environments step together, each finished environment
+is frozen until the whole batch is done. The same seeds give identical records.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from crowdplan.config import WorldConfig
+from crowdplan.io import write_json, write_jsonl
+from crowdplan.policy import Policy
+from crowdplan.sim.world import OUTCOME_NAMES, RUNNING, World
+
+TEST_SEED_BASE, TEST_CASES = 1000, 500
+VAL_SEED_BASE, VAL_CASES = 0, 100
+REPORT_GAMMA = 0.95  # discount of the "mean reward" metric: 0.95^(t * dt * v_pref)
+Z95 = 1.959963984540054
+
+
+def test_seeds(episodes: int = TEST_CASES) -> list[int]:
+    """Seeds of the first ``episodes`` test cases (case k -> seed 1000 + k)."""
+    return list(range(TEST_SEED_BASE, TEST_SEED_BASE + episodes))
+
+
+def validation_seeds(episodes: int = VAL_CASES) -> list[int]:
+    """Seeds of the validation cases (case k -> seed k)."""
+    return list(range(VAL_SEED_BASE, VAL_SEED_BASE + episodes))
+
+
+@dataclass
+class Trace:
+    """Trajectory of one episode, for rendering and strategy analysis."""
+
+    robot_pos: np.ndarray  # (T+1, 2)
+    robot_vel: np.ndarray  # (T, 2)
+    robot_goal: np.ndarray  # (2,)
+    robot_radius: float
+    human_pos: np.ndarray  # (T+1, N, 2)
+    human_goal: np.ndarray  # (N, 2)
+    human_radius: np.ndarray  # (N,)
+    scores: np.ndarray | None  # (T, N) per-human scores (attention) at each step
+    dt: float
+
+
+@dataclass
+class EpisodeRecord:
+    """Per-episode facts from which every metric is computed."""
+
+    seed: int
+    outcome: str
+    steps: int
+    time: float
+    discounted_return: float
+    total_reward: float
+    path_length: float
+    spl: float
+    min_distance: float  # smallest swept d_min over the episode (inf with no humans)
+    discomfort_steps: int
+    discomfort_distance_sum: float  # sum of d_min over discomfort steps
+    jerk: float  # mean |change of acceleration| (m/s^3) over the episode
+    trace: Trace | None = field(default=None, repr=False)
+
+    def to_json(self) -> dict:
+        row = asdict(self)
+        row.pop("trace")
+        row["min_distance"] = None if math.isinf(self.min_distance) else self.min_distance
+        return row
+
+
+def run_episodes(
+    policy: Policy,
+    config: WorldConfig,
+    seeds: list[int],
+    batch_size: int = 100,
+    record_traces: bool = False,
+) -> list[EpisodeRecord]:
+    """Run one episode per seed with ``policy``; returns records in seed order."""
+    records: list[EpisodeRecord] = []
+    for start in range(0, len(seeds), batch_size):
+        chunk = seeds[start : start + batch_size]
+        records.extend(_run_batch(policy, config, chunk, record_traces))
+    return records
+
+
+def _run_batch(policy, config: WorldConfig, seeds, record_traces) -> list[EpisodeRecord]:
+    world = World(config, len(seeds))
+    world.reset(seeds)
+    e = len(seeds)
+    active = np.ones(e, dtype=bool)
+    outcome = np.full(e, RUNNING)
+    rewards, d_mins, vels = [], [], []
+    robot_pos, human_pos, scores = [world.robot_pos.copy()], [world.human_pos.copy()], []
+    while active.any():
+        out = policy.act(*world.observe())
+        result = world.step(out.actions, active)
+        rewards.append(result.reward)
+        d_mins.append(np.where(active, result.d_min, np.nan))
+        vels.append(np.where(active[:, None], world.robot_vel, np.nan))
+        if record_traces:
+            robot_pos.append(world.robot_pos.copy())
+            human_pos.append(world.human_pos.copy())
+            scores.append(out.scores)
+        outcome = np.where(active, result.outcome, outcome)
+        active &= result.outcome == RUNNING
+    rewards_arr, d_min_arr, vel_arr = np.array(rewards), np.array(d_mins), np.array(vels)
+    records = []
+    for k, seed in enumerate(seeds):
+        steps = int(world.steps[k])
+        trace = None
+        if record_traces:
+            trace = Trace(
+                robot_pos=np.array([p[k] for p in robot_pos[: steps + 1]]),
+                robot_vel=vel_arr[:steps, k],
+                robot_goal=world.robot_goal[k].copy(),
+                robot_radius=config.robot_radius,
+                human_pos=np.array([p[k] for p in human_pos[: steps + 1]]),
+                human_goal=world.human_goal[k].copy(),
+                human_radius=world.human_radius[k].copy(),
+                scores=None if scores[0] is None else np.array([s[k] for s in scores[:steps]]),
+                dt=config.dt,
+            )
+        records.append(
+            episode_record(
+                seed,
+                OUTCOME_NAMES[int(outcome[k])],
+                rewards_arr[:steps, k],
+                d_min_arr[:steps, k],
+                vel_arr[:steps, k],
+                world.start_dist[k],
+                config,
+                trace,
+            )
+        )
+    return records
+
+
+def episode_record(
+    seed: int,
+    outcome: str,
+    rewards: np.ndarray,
+    d_min: np.ndarray,
+    robot_vel: np.ndarray,
+    start_dist: float,
+    config: WorldConfig,
+    trace: Trace | None = None,
+) -> EpisodeRecord:
+    """Reduce one episode's per-step arrays to its record."""
+    steps = len(rewards)
+    t = np.arange(steps)
+    discount = REPORT_GAMMA ** (t * config.dt * config.robot_v_pref)
+    discomfort = (d_min > 0) & (d_min < config.discomfort_dist)
+    path_length = float(np.hypot(robot_vel[:, 0], robot_vel[:, 1]).sum() * config.dt)
+    success = outcome == "goal"
+    spl = float(start_dist / max(path_length, start_dist)) if success else 0.0
+    jerk = 0.0
+    if steps >= 3:
+        accel = np.diff(np.vstack([np.zeros(2), robot_vel]), axis=0) / config.dt
+        jerk = float(np.hypot(*np.diff(accel, axis=0).T).mean() / config.dt)
+    return EpisodeRecord(
+        seed=int(seed),
+        outcome=outcome,
+        steps=steps,
+        time=steps * config.dt,
+        discounted_return=float((discount * rewards).sum()),
+        total_reward=float(rewards.sum()),
+        path_length=path_length,
+        spl=spl,
+        min_distance=float(np.min(d_min)) if d_min.size else math.inf,
+        discomfort_steps=int(discomfort.sum()),
+        discomfort_distance_sum=float(d_min[discomfort].sum()),
+        jerk=jerk,
+        trace=trace,
+    )
+
+
+# ---------------------------------------------------------------------- metrics
+def wilson_interval(successes: int, n: int) -> list[float]:
+    """95% Wilson score interval of a proportion."""
+    if n == 0:
+        return [math.nan, math.nan]
+    p = successes / n
+    denom = 1 + Z95**2 / n
+    centre = (p + Z95**2 / (2 * n)) / denom
+    half = Z95 * math.sqrt(p * (1 - p) / n + Z95**2 / (4 * n**2)) / denom
+    return [max(0.0, centre - half), min(1.0, centre + half)]
+
+
+def mean_interval(values: np.ndarray) -> tuple[float, list[float]]:
+    """Mean and its 95% normal-approximation interval (nan when empty)."""
+    values = np.asarray(values, dtype=float)
+    if values.size == 0:
+        return math.nan, [math.nan, math.nan]
+    mean = float(values.mean())
+    if values.size == 1:
+        return mean, [mean, mean]
+    half = Z95 * float(values.std(ddof=1)) / math.sqrt(values.size)
+    return mean, [mean - half, mean + half]
+
+
+def summarize(records: list[EpisodeRecord]) -> dict[str, dict]:
+    """Every metric as {"value": v, "ci95": [lo, hi]} (definitions: docs/metrics.md)."""
+    n = len(records)
+    outcomes = [r.outcome for r in records]
+    counts = {name: outcomes.count(name) for name in ("goal", "collision", "timeout")}
+    successes = [r for r in records if r.outcome == "goal"]
+    total_steps = sum(r.steps for r in records)
+    discomfort_steps = sum(r.discomfort_steps for r in records)
+
+    def rate(k: int, total: int) -> dict:
+        return {"value": k / total if total else math.nan, "ci95": wilson_interval(k, total)}
+
+    def mean(values) -> dict:
+        value, ci = mean_interval(np.asarray(values, dtype=float))
+        return {"value": value, "ci95": ci}
+
+    # Mean distance pools the discomfort steps of all episodes; its CI treats steps as samples.
+    discomfort_d = (
+        np.concatenate(
+            [
+                np.full(r.discomfort_steps, r.discomfort_distance_sum / r.discomfort_steps)
+                for r in records
+                if r.discomfort_steps
+            ]
+        )
+        if discomfort_steps
+        else np.array([])
+    )
+    summary = {
+        "episodes": {"value": n, "ci95": None},
+        "success_rate": rate(counts["goal"], n),
+        "collision_rate": rate(counts["collision"], n),
+        "timeout_rate": rate(counts["timeout"], n),
+        "time_to_goal": mean([r.time for r in successes]),
+        "mean_distance": {
+            "value": (sum(r.discomfort_distance_sum for r in records) / discomfort_steps)
+            if discomfort_steps
+            else math.nan,
+            "ci95": mean_interval(discomfort_d)[1],
+        },
+        "discomfort_frequency": rate(discomfort_steps, total_steps),
+        "mean_reward": mean([r.discounted_return for r in records]),
+        "path_length": mean([r.path_length for r in successes]),
+        "spl": mean([r.spl for r in records]),
+        "min_distance": mean([r.min_distance for r in records if math.isfinite(r.min_distance)]),
+        "jerk": mean([r.jerk for r in records]),
+    }
+    return summary
+
+
+METRIC_ROWS = [
+    ("success_rate", "success"),
+    ("collision_rate", "collision"),
+    ("timeout_rate", "timeout"),
+    ("time_to_goal", "time to goal (s)"),
+    ("mean_distance", "mean distance (m)"),
+    ("discomfort_frequency", "discomfort freq."),
+    ("mean_reward", "mean reward"),
+    ("path_length", "path length (m)"),
+    ("spl", "SPL"),
+    ("jerk", "jerk (m/s^3)"),
+]
+
+
+def format_table(summary: dict[str, dict], title: str = "") -> str:
+    """Plain-text metrics table with 95% intervals."""
+    lines = [title] if title else []
+    lines.append(f"{'metric':<20} {'value':>8}   95% CI")
+    for key, label in METRIC_ROWS:
+        entry = summary[key]
+        lo, hi = entry["ci95"]
+        lines.append(f"{label:<20} {entry['value']:>8.3f}   [{lo:.3f}, {hi:.3f}]")
+    return "\n".join(lines)
+
+
+def write_results(
+    out_dir: str | Path, summary: dict, records: list[EpisodeRecord], meta: dict
+) -> None:
+    """Write ``summary.json`` (metrics + run metadata) and ``episodes.jsonl`` atomically."""
+    out = Path(out_dir)
+    write_jsonl(out / "episodes.jsonl", (r.to_json() for r in records))
+    write_json(out / "summary.json", {**summary, "meta": meta})
