@@ -102,7 +102,7 @@ def mlp(sizes: list[int], last_relu: bool = False) -> nn.Sequential:
     for i in range(len(sizes) - 1):
         layers.append(nn.Linear(sizes[i], sizes[i + 1]))
         if i < len(sizes) - 2 or last_relu:
-            layers.append(nn.ReLU())
+            layers.append(nn.ReLU(inplace=True))
     return nn.Sequential(*layers)
 
 
@@ -230,19 +230,21 @@ class AttentionEncoder(Encoder):
 
     def forward(self, robot: Tensor, humans: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
         humans = _zero_padding(humans, mask)
+        index = None
+        if self.lstm is not None:
+            # put the humans in LSTM order up front (a cheap gather of the inputs, not of the
+            # 50-d features) and undo it on the attention weights at the end
+            index = order_humans(humans, mask, self.order)
+            humans, mask = _gather_rows(humans, index), mask.gather(1, index)
         pair = torch.cat([robot.unsqueeze(1).expand(-1, humans.shape[1], -1), humans], dim=-1)
         e = self.f_e(pair)
         h = self.f_h(torch.cat([e, pair], dim=-1) if self.skip else e)
         attention = masked_softmax(self.f_a(e).squeeze(-1), mask)
         weighted = attention.unsqueeze(-1) * h
         if self.lstm is None:
-            s_o = weighted.sum(dim=1)
-        else:
-            index = order_humans(humans, mask, self.order)
-            lengths = mask.sum(dim=1)
-            s_o = lstm_last_hidden(
-                self.lstm, _gather_rows(weighted, index), lengths, bool(mask.all())
-            )
+            return torch.cat([robot, weighted.sum(dim=1)], dim=1), attention
+        s_o = lstm_last_hidden(self.lstm, weighted, mask.sum(dim=1), bool(mask.all()))
+        attention = torch.empty_like(attention).scatter_(1, index, attention)
         return torch.cat([robot, s_o], dim=1), attention
 
 

@@ -24,6 +24,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
+from matplotlib.layout_engine import ConstrainedLayoutEngine
 from matplotlib.lines import Line2D
 from matplotlib.patches import Circle
 
@@ -106,8 +107,9 @@ def _draw_static(ax, trace: Trace, style: _Style) -> None:
     ax.grid(True, linewidth=0.3, alpha=0.5)
 
 
-def _legend(fig: Figure, style: _Style) -> None:
-    """One legend below the axes (outside, so it never hides a trajectory)."""
+def _legend(target, style: _Style) -> None:
+    """The legend: below the axes on a constrained-layout figure (so that it never hides a
+    trajectory), else in the upper right corner of the axes ``target``."""
     handles = [
         Line2D([], [], marker="o", markersize=8, color="none", markerfacecolor=ROBOT_COLOR,
                markeredgecolor=ROBOT_EDGE, label="robot"),
@@ -123,8 +125,11 @@ def _legend(fig: Figure, style: _Style) -> None:
             Line2D([], [], marker="o", markersize=8, color="none", markerfacecolor="white",
                    markeredgecolor="0.35", alpha=0.55, label="time stamps (s)"),
         ]
-    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize=6.5,
-               frameon=False, handletextpad=0.2, columnspacing=0.9)
+    if isinstance(target, Figure):
+        target.legend(handles=handles, loc="outside lower center", ncols=len(handles),
+                      fontsize=6.5, frameon=False, handletextpad=0.2, columnspacing=0.9)
+    else:
+        target.legend(handles=handles, loc="upper right", fontsize=6.5, framealpha=0.85)
 
 
 def _segment_artists(ax, trace: Trace, style: _Style, a: int, b: int) -> list:
@@ -223,13 +228,9 @@ def draw_trace(
     for k in range(0, t, stamp_every) if stamp_every > 0 else ():
         _stamp_artists(ax, trace, style, k)
     _current_artists(ax, trace, style, t)
-    fig = ax.get_figure()
-    if fig is not None and getattr(fig.get_layout_engine(), "__class__", None).__name__ == (
-        "ConstrainedLayoutEngine"
-    ):
-        _legend(fig, style)
-    else:
-        _legend(ax, style)
+    fig = ax.get_figure(root=True)
+    constrained = fig is not None and isinstance(fig.get_layout_engine(), ConstrainedLayoutEngine)
+    _legend(fig if constrained else ax, style)
 
 
 def _figure(size: float, dpi: int, with_scores: bool) -> tuple[Figure, object]:

@@ -1,0 +1,33 @@
+# Two commands on a fresh machine: `make demo` and `make test` (each sets up .venv first).
+VENV ?= .venv
+PY := $(VENV)/bin/python
+BIN := $(VENV)/bin
+DEMO := runs/demo
+
+.PHONY: setup demo test lint format bench
+
+setup: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	python3 -m venv $(VENV)
+	$(PY) -m pip install --quiet -e ".[dev]"
+	# pyrvo (the RVO2 reference for the ORCA oracle test) declares a large dependency it does not use.
+	$(PY) -m pip install --quiet --no-deps pyrvo==0.4.3
+	touch $@
+
+demo: setup
+	$(BIN)/crowdplan eval --policy orca --episodes 500 --out $(DEMO)/orca-circle
+	$(BIN)/crowdplan render --policy orca --case 0 --out $(DEMO)/orca-case0.gif
+
+test: setup
+	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/ruff format --check src tests benchmarks
+	$(PY) -m pytest
+
+format: setup
+	$(BIN)/ruff format src tests benchmarks
+	$(BIN)/ruff check --fix src tests benchmarks
+
+bench: setup
+	$(PY) benchmarks/bench_sim.py
+	$(PY) benchmarks/bench_update.py

@@ -1,0 +1,100 @@
+"""Training pipeline: determinism, exact resume, config and checkpoint errors."""
+
+import dataclasses
+
+import pytest
+import torch
+
+from crowdplan.training import Trainer, config_from_dict, load_config
+
+TINY = {
+    "name": "tiny",
+    "episodes": 6,
+    "num_envs": 2,
+    "random_steps": 16,
+    "learning_starts": 16,
+    "val_interval": 1000,
+    "checkpoint_interval": 1000,
+    "log_interval": 1000,
+    "test_episodes": 0,
+    "world": {"humans": 3, "time_limit": 4.0},
+    "encoder": {"name": "lsa"},
+    "dsac": {"batch_size": 16},
+}
+
+
+def _train(tmp_path, name, episodes=6, **changes):
+    config = dataclasses.replace(config_from_dict(TINY), episodes=episodes, **changes)
+    trainer = Trainer(config, tmp_path / name, progress=False)
+    trainer.run()
+    return trainer
+
+
+def _weights(trainer):
+    return torch.cat([p.detach().flatten() for p in trainer.agent.actor.parameters()])
+
+
+def test_same_seed_twice_is_identical(tmp_path):
+    a, b = _train(tmp_path, "a"), _train(tmp_path, "b")
+    assert torch.equal(_weights(a), _weights(b))
+    assert a.episodes == b.episodes
+
+
+def test_different_seed_differs(tmp_path):
+    a, b = _train(tmp_path, "a"), _train(tmp_path, "b", seed=1)
+    assert not torch.equal(_weights(a), _weights(b))
+
+
+def test_resume_after_stop_continues_exactly(tmp_path):
+    straight = _train(tmp_path, "straight", episodes=6)
+    first = _train(tmp_path, "resumed", episodes=3)  # ends with a checkpoint, as a kill would
+    resumed = Trainer(dataclasses.replace(first.config, episodes=6), tmp_path / "resumed", False)
+    resumed.restore(tmp_path / "resumed" / "checkpoint.pt")
+    resumed.run()
+    assert torch.equal(_weights(straight), _weights(resumed))
+    assert [e["seed"] for e in straight.episodes] == [e["seed"] for e in resumed.episodes]
+
+
+def test_corrupted_checkpoint_is_reported(tmp_path):
+    trainer = _train(tmp_path, "run", episodes=2)
+    path = tmp_path / "run" / "checkpoint.pt"
+    path.write_bytes(path.read_bytes()[:1000])
+    with pytest.raises(ValueError, match="unreadable or corrupted"):
+        Trainer(trainer.config, tmp_path / "run", False).restore(path)
+
+
+def test_checkpoint_from_another_encoder_is_refused(tmp_path):
+    trainer = _train(tmp_path, "run", episodes=2)
+    other = config_from_dict({**TINY, "encoder": {"name": "sa"}})
+    with pytest.raises(ValueError, match="different config"):
+        Trainer(other, tmp_path / "run", False).restore(tmp_path / "run" / "checkpoint.pt")
+    assert trainer is not None
+
+
+@pytest.mark.parametrize(
+    ("data", "fragment"),
+    [
+        ({**TINY, "encoder": {"name": "transformer"}}, "transformer"),
+        ({**TINY, "learning_rate": 1}, "unknown key(s) ['learning_rate']"),
+        ({**TINY, "dsac": {"gama": 0.9}}, "unknown key(s) ['gama']"),
+        ({**TINY, "num_envs": 0}, "num_envs must be an integer >= 1"),
+        ([1, 2], "must be a YAML mapping"),
+    ],
+)
+def test_bad_config_is_explained(data, fragment):
+    with pytest.raises(ValueError) as error:
+        config_from_dict(data)
+    assert fragment in str(error.value)
+
+
+def test_malformed_yaml_file(tmp_path):
+    path = tmp_path / "bad.yaml"
+    path.write_text("name: [unclosed\n")
+    with pytest.raises(ValueError, match="not valid YAML"):
+        load_config(path)
+
+
+def test_shipped_presets_load():
+    for name in ("raw", "rg", "aw", "sa", "lsa"):
+        config = load_config(f"configs/{name}_dsac.yaml")
+        assert config.encoder.name == name and config.world.humans == 5
