@@ -5,17 +5,28 @@ pyrvo's own trajectory: the inputs are read back from pyrvo (so they are float32
 both sides see identically), one ``do_step()`` is taken, and pyrvo's new velocities are compared
 with ours.
 
-Float32 in degenerate linear programs. In roughly 1 agent-step in 2,000 of the dense scenes the
-difference exceeds 1e-5 (up to a few 1e-2). All of these are cases where float32 arithmetic itself
-moves the answer: nearly anti-parallel ORCA lines in the 3-D fallback (the projected lines then
-cross ~1e3 away from the origin, and float32 cancellation leaves errors of 1e-4..1e-2; RVO2 even
-returns speeds above max_speed there) or near-tangent legs (``sqrt(dist^2 - r^2)`` with dist ~ r).
-The test does not widen the tolerance for them; it *proves* each one is such a case by running our
-own kernel in float32 (its pure-Python body on float32 inputs, NumPy keeping float32 throughout):
-for each agent-step over 1e-5 the float32 run must move our answer by more than 1e-6 (the problem
-is ill-conditioned at float32 precision) and pyrvo's deviation must be of that same size (within a
-factor 20). In about half of these cases the float32 run reproduces pyrvo's velocity bit for bit.
-Everything else must agree to 1e-5.
+Float32 in degenerate programs. In about 1 agent-step in 1,000 of these dense scenes the
+difference exceeds 1e-5 (up to ~0.1). All such cases are ones where float32 arithmetic itself moves
+the answer: (a) near-tangent agents, whose leg direction needs ``sqrt(dist^2 - r^2)`` with
+dist^2 - r^2 ~ 1e-8..1e-5 (ORCA agents often come to rest touching), so RVO2's float32 half-plane
+is off by ~1e-5; (b) nearly parallel or anti-parallel ORCA lines, whose intersections lie 1e1..1e3
+away from the origin, so float32 cancellation in the 2-D program and above all in the 3-D fallback
+leaves errors of 1e-5..1e-1, sometimes flipping a discrete decision (the 1e-5 parallel test,
+which side of a line is violated). The tolerance is not widened for them; each one has to be
+*explained*, by one of:
+
+- float32-sensitive: our own algorithm evaluated in float32 (the kernel's pure-Python body on
+  float32 inputs, NumPy keeping float32 throughout; the exact inputs plus copies nudged by one
+  float32 ulp) moves our velocity by more than 1e-6, and pyrvo's deviation is at most 10 times that
+  spread. In about half of these cases the plain float32 run reproduces pyrvo's velocity bit for
+  bit. This explains all but ~1 in 1,000 of the cases seen over 60 seeded batches;
+- pyrvo's velocity exceeds its own max speed (impossible in exact arithmetic);
+- pyrvo's 3-D program stopped early: our velocity violates pyrvo's own ORCA half-planes strictly
+  less than pyrvo's velocity does (RVO2 keeps its previous result when an inner program fails
+  "due to floating point error").
+
+Such cases must also stay rare (<= 0.2 % of agent-steps in the scenes, <= 5 % in the random
+overlapping states). Everything else must agree to 1e-5.
 """
 
 from __future__ import annotations
@@ -43,7 +54,7 @@ TOL = 1e-5
 # An agent-step is ill-conditioned at float32 precision when evaluating the same algorithm in
 # float32 moves the velocity by more than this (about 16 float32 ulps at speed 1).
 F32_SENSITIVE = 1e-6
-# ... and pyrvo's deviation then has to be of the size of that float32 effect.
+# ... and pyrvo's deviation then has to be of the size of that float32 effect (observed <= 5).
 F32_RATIO = 10.0
 # Float32 evaluations per case: the exact inputs plus copies nudged by one float32 ulp.
 F32_SAMPLES = 8
@@ -154,6 +165,23 @@ def _float32_spread(inputs: tuple[np.ndarray, ...], e: int, i: int) -> tuple[flo
     return spread, first
 
 
+def _max_penetration(a: dict[str, np.ndarray], e: int, i: int, v: np.ndarray) -> float:
+    """Deepest violation of pyrvo's own ORCA half-planes of agent ``i`` (env ``e``) by ``v``.
+
+    Re-runs that pyrvo step from the stored (float32-exact) inputs and reads its ORCA lines; a
+    line (point p, direction d) permits the velocities v with det(d, p - v) <= 0.
+    """
+    members = np.nonzero(a["active"][e] | (np.arange(a["active"].shape[1]) == i))[0]
+    slot = int(np.searchsorted(members, i))
+    sim = _rvo_stepped(a["pos"][e], a["vel"][e], a["rad"][e], a["vmax"][e], a["pref"][e], members)
+    assert np.array_equal(_state(sim, len(members))[1][slot], a["ref"][e, i])  # same step
+    worst = 0.0
+    for k in range(sim.get_agent_num_orca_lines(slot)):
+        (dx, dy), (px, py) = sim.get_agent_orca_line(slot, k)
+        worst = max(worst, dx * (py - v[1]) - dy * (px - v[0]))
+    return worst
+
+
 def _compare(batch: Batch, max_degenerate_fraction: float) -> dict[str, float]:
     """Run our ORCA on the whole batch and check it against pyrvo (see the module docstring)."""
     a = batch.arrays()
@@ -161,22 +189,29 @@ def _compare(batch: Batch, max_degenerate_fraction: float) -> dict[str, float]:
     mine = orca_velocities(*inputs, DT, NEIGHBOR_DIST, MAX_NEIGHBORS, TIME_HORIZON)
     # Rows not solved come back unchanged.
     assert np.array_equal(mine[~a["solve"]], a["vel"][~a["solve"]])
+    # Our velocities respect the speed limit.
+    overspeed = np.linalg.norm(mine, axis=-1) - a["vmax"]
+    assert overspeed[a["solve"]].max() <= 1e-9, overspeed[a["solve"]].max()
 
     diff = np.where(a["check"], np.abs(mine - a["ref"]).max(axis=-1), 0.0)
     n_checked = int(a["check"].sum())
+    reasons = {"float32-sensitive": 0, "pyrvo over max speed": 0, "pyrvo 3-D LP stopped early": 0}
     unexplained: list[tuple[int, int, float, float]] = []
-    explained = 0
     exact32 = 0
-    worst_ratio = 0.0
     for e, i in zip(*np.nonzero(diff > TOL), strict=True):
-        spread, v32 = _float32_spread(inputs, int(e), int(i))
-        ratio = diff[e, i] / max(spread, 1e-300)
-        if spread > F32_SENSITIVE and ratio <= F32_RATIO:
-            explained += 1
-            worst_ratio = max(worst_ratio, ratio)
-            exact32 += bool(np.array_equal(v32, a["ref"][e, i]))
+        e, i = int(e), int(i)
+        ref = a["ref"][e, i]
+        spread, v32 = _float32_spread(inputs, e, i)
+        exact32 += bool(np.array_equal(v32, ref))
+        if spread > F32_SENSITIVE and diff[e, i] <= F32_RATIO * spread:
+            reasons["float32-sensitive"] += 1
+        elif np.linalg.norm(ref) > a["vmax"][e, i] * (1.0 + 1e-6):
+            reasons["pyrvo over max speed"] += 1
+        elif _max_penetration(a, e, i, mine[e, i]) < _max_penetration(a, e, i, ref) - 1e-7:
+            reasons["pyrvo 3-D LP stopped early"] += 1
         else:
-            unexplained.append((int(e), int(i), float(diff[e, i]), spread))
+            unexplained.append((e, i, float(diff[e, i]), spread))
+    explained = sum(reasons.values())
 
     max_diff = float(diff.max())
     if unexplained:
@@ -184,11 +219,11 @@ def _compare(batch: Batch, max_degenerate_fraction: float) -> dict[str, float]:
     else:
         max_regular = float(np.where(diff > TOL, 0.0, diff).max())
     msg = (
-        f"{n_checked} agent-steps; max |ours - pyrvo| = {max_diff:.3g}; "
+        f"{n_checked} agent-steps ({int((diff > 1e-6).sum())} over 1e-6); "
+        f"max |ours - pyrvo| = {max_diff:.3g}; "
         f"max outside float32-degenerate cases = {max_regular:.4g} (tol {TOL}); "
-        f"{explained} float32-degenerate cases (pyrvo's deviation <= {worst_ratio:.2f} x the "
-        f"float32 spread; the plain float32 run equals pyrvo bit for bit in {exact32}); "
-        f"unexplained (env, agent, diff, float32 spread): {unexplained[:10]}"
+        f"{explained} float32-degenerate cases {reasons} (our float32 run equals pyrvo bit for "
+        f"bit in {exact32}); unexplained (env, agent, diff, float32 spread): {unexplained[:10]}"
     )
     assert not unexplained, msg
     assert max_regular <= TOL, msg
@@ -234,6 +269,23 @@ def _state(sim: pyrvo.RVOSimulator, n: int) -> tuple[np.ndarray, np.ndarray]:
     return pos, vel
 
 
+def _rvo_stepped(
+    pos: np.ndarray,
+    vel: np.ndarray,
+    rad: np.ndarray,
+    vmax: np.ndarray,
+    pref: np.ndarray,
+    members: np.ndarray,
+) -> pyrvo.RVOSimulator:
+    """A pyrvo simulator holding the agents ``members`` only (in that order), after one step."""
+    sim = _simulator()
+    for slot, k in enumerate(members):
+        _add(sim, pos[k], rad[k], vmax[k], vel[k])
+        sim.set_agent_pref_velocity(slot, (float(pref[k, 0]), float(pref[k, 1])))
+    sim.do_step()
+    return sim
+
+
 def _rvo_step(
     pos: np.ndarray,
     vel: np.ndarray,
@@ -243,12 +295,7 @@ def _rvo_step(
     members: np.ndarray,
 ) -> np.ndarray:
     """One pyrvo step of the agents ``members`` only; their new velocities in that order."""
-    sim = _simulator()
-    for slot, k in enumerate(members):
-        _add(sim, pos[k], rad[k], vmax[k], vel[k])
-        sim.set_agent_pref_velocity(slot, (float(pref[k, 0]), float(pref[k, 1])))
-    sim.do_step()
-    return _state(sim, len(members))[1]
+    return _state(_rvo_stepped(pos, vel, rad, vmax, pref, members), len(members))[1]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -278,8 +325,8 @@ def _circle_batch(rng: np.random.Generator, n_scenes: int) -> Batch:
             radius = _f32(rng.uniform(0.3, 0.5, n) + 0.01)
             vmax = _f32(rng.uniform(0.5, 1.5, n))
         else:
-            radius = np.full(n, RADIUS)
-            vmax = np.full(n, MAX_SPEED)
+            radius = _f32(np.full(n, RADIUS))
+            vmax = _f32(np.full(n, MAX_SPEED))
         sim = _simulator()
         for i in range(n):
             _add(sim, start[i], radius[i], vmax[i], np.zeros(2))
@@ -427,6 +474,14 @@ def test_head_on_pair_deflects_symmetrically() -> None:
         sim.set_agent_pref_velocity(sim.get_num_agents() - 1, tuple(v))
     sim.do_step()
     np.testing.assert_allclose(out, _state(sim, 2)[1], atol=TOL)
+
+
+def test_max_neighbors_zero_ignores_everyone() -> None:
+    pos = np.array([[[-1.0, 0.0], [1.0, 0.0]]])
+    vel = np.array([[[1.0, 0.0], [-1.0, 0.0]]])
+    ones = np.ones((1, 2), bool)
+    out = orca_velocities(pos, vel, RADIUS, vel, MAX_SPEED, ones, ones, DT, max_neighbors=0)
+    np.testing.assert_array_equal(out, vel)
 
 
 def test_coincident_agents_do_not_produce_nan() -> None:

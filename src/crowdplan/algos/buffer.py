@@ -46,9 +46,7 @@ class ReplayBuffer:
         self.pos = 0  # next slot to write
         self.size = 0
         self.data: dict[str, np.ndarray] = {
-            name: np.zeros(
-                (capacity, *(max_humans if d == "H" else d for d in shape)), dtype=dtype
-            )
+            name: np.zeros((capacity, *(max_humans if d == "H" else d for d in shape)), dtype=dtype)
             for name, (shape, dtype) in _FIELDS.items()
         }
 
@@ -103,7 +101,9 @@ class ReplayBuffer:
         self.pos = (self.pos + n) % self.capacity
         self.size = min(self.size + n, self.capacity)
 
-    def sample(self, batch_size: int, device: torch.device | str = "cpu") -> dict[str, torch.Tensor]:
+    def sample(
+        self, batch_size: int, device: torch.device | str = "cpu"
+    ) -> dict[str, torch.Tensor]:
         """Draw ``batch_size`` transitions uniformly with replacement.
 
         Returns a dict with the keys of :meth:`add_batch` holding torch tensors (float32, except

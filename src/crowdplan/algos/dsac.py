@@ -3,10 +3,11 @@
 Christodoulou's discrete SAC: with 81 actions the expectations over the policy are computed exactly
 as sums over actions, so neither the target nor the policy loss samples an action.
 
-- target  ``y = r + gamma (1 - done) sum_a' pi(a'|s') (min(Q1', Q2')(s', a') - alpha log pi(a'|s'))``
-- critic  ``MSE(Q1(s, a), y) + MSE(Q2(s, a), y)``
-- policy  ``mean_s sum_a pi(a|s) (alpha log pi(a|s) - min(Q1, Q2)(s, a))``
-- alpha   ``mean_s log_alpha (H(pi(.|s)) - H_target)``, ``H_target = scale * log(n_actions)``
+- target: ``y = r + gamma (1 - done) V(s')`` with the soft value
+  ``V(s') = sum_a' pi(a'|s') (min(Q1', Q2')(s', a') - alpha log pi(a'|s'))``
+- critic: ``MSE(Q1(s, a), y) + MSE(Q2(s, a), y)``
+- policy: ``mean_s sum_a pi(a|s) (alpha log pi(a|s) - min(Q1, Q2)(s, a))`` (Q detached)
+- temperature: ``mean_s log_alpha (H(pi(.|s)) - H_target)``, ``H_target = scale * log(n_actions)``
 
 ``done`` is 1 only when the episode *terminated* (collision or goal). A time-limit truncation is
 not a terminal state of the MDP, so its transition is stored with ``done = 0`` and the target

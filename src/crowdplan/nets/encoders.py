@@ -102,7 +102,7 @@ def mlp(sizes: list[int], last_relu: bool = False) -> nn.Sequential:
     for i in range(len(sizes) - 1):
         layers.append(nn.Linear(sizes[i], sizes[i + 1]))
         if i < len(sizes) - 2 or last_relu:
-            layers.append(nn.ReLU(inplace=True))
+            layers.append(nn.ReLU())
     return nn.Sequential(*layers)
 
 
@@ -122,17 +122,17 @@ def _zero_padding(humans: Tensor, mask: Tensor) -> Tensor:
     return humans.masked_fill(~mask.unsqueeze(-1), 0.0)
 
 
-def order_humans(humans: Tensor, mask: Tensor, order: str) -> Tensor:
-    """Index (B, N) that puts the real humans first, in ``order``, and the padding after them."""
+def order_humans(humans: Tensor, mask: Tensor, order: str, padding_first: bool = False) -> Tensor:
+    """Permutation index (B, N) that lists the real humans in ``order`` (see
+    :class:`EncoderConfig`) and the padding after them (before them if ``padding_first``)."""
     if order == "index":
-        # stable sort on "is padding" keeps the input order among real humans
-        return torch.sort((~mask).to(torch.int8), dim=1, stable=True).indices
-    dist = humans[..., DIST_COL]
-    if order == "distance_desc":
-        key = dist.masked_fill(~mask, float("-inf"))
-        return torch.sort(key, dim=1, descending=True, stable=True).indices
-    key = dist.masked_fill(~mask, float("inf"))
-    return torch.sort(key, dim=1, stable=True).indices
+        # stable sort on "is padding" keeps the input order among the real humans
+        is_last = mask if padding_first else ~mask
+        return torch.sort(is_last.to(torch.int8), dim=1, stable=True).indices
+    descending = order == "distance_desc"
+    pad_key = float("inf") if descending == padding_first else float("-inf")
+    key = humans[..., DIST_COL].masked_fill(~mask, pad_key)
+    return torch.sort(key, dim=1, descending=descending, stable=True).indices
 
 
 def _gather_rows(x: Tensor, index: Tensor) -> Tensor:
@@ -178,7 +178,7 @@ class Encoder(nn.Module):
 
 
 class RawEncoder(Encoder):
-    """"Source state" encoder: robot (6) + ``max_humans`` x human (7) -> MLP 150 -> 100 -> 56.
+    """ "Source state" encoder: robot (6) + ``max_humans`` x human (7) -> MLP 150 -> 100 -> 56.
 
     Humans are ordered by ``lstm_order`` (default decreasing distance) and right-aligned in the
     ``max_humans`` slots, so with the default order the closest human always sits in the last slot;
@@ -196,13 +196,13 @@ class RawEncoder(Encoder):
     def forward(self, robot: Tensor, humans: Tensor, mask: Tensor) -> tuple[Tensor, None]:
         batch, n = humans.shape[0], humans.shape[1]
         humans = _zero_padding(humans, mask)
-        # reverse of "real first, padding last" = padding first, real humans right-aligned
-        index = order_humans(humans, mask, self.order).flip(1)
+        index = order_humans(humans, mask, self.order, padding_first=True)  # right-aligned
         ordered = _gather_rows(humans, index)
         if n >= self.max_humans:
             slots = ordered[:, n - self.max_humans :]
         else:
-            slots = torch.cat([ordered.new_zeros(batch, self.max_humans - n, HUMAN_DIM), ordered], 1)
+            empty = ordered.new_zeros(batch, self.max_humans - n, HUMAN_DIM)
+            slots = torch.cat([empty, ordered], dim=1)
         return self.net(torch.cat([robot, slots.reshape(batch, -1)], dim=1)), None
 
 
@@ -210,7 +210,8 @@ class AttentionEncoder(Encoder):
     """AW, SA and LSA (SPEC section 4).
 
     - ``e_i = f_e([s_r, o_i])``: MLP 13 -> 150 -> 100 (ReLU after both layers)
-    - ``h_i = f_h(e_i)`` (AW, 100 -> 100 -> 50) or ``f_h([e_i, s_r, o_i])`` (SA/LSA, 113 -> 100 -> 50)
+    - ``h_i = f_h(e_i)`` (AW, MLP 100 -> 100 -> 50) or ``f_h([e_i, s_r, o_i])`` (SA and LSA,
+      113 -> 100 -> 50)
     - ``alpha_i = f_a(e_i)``: MLP 100 -> 100 -> 1; ``w = masked softmax(alpha)``
     - AW/SA: ``S_o = sum_i w_i h_i``; LSA: ``S_o`` = last hidden state of LSTM(50 -> 50) over
       ``w_i h_i`` in ``lstm_order`` (padding excluded by packing)
@@ -307,6 +308,11 @@ class RelationalGraphEncoder(Encoder):
 
     def forward(self, robot: Tensor, humans: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
         humans = _zero_padding(humans, mask)
+        index = None
+        if self.lstm is not None:
+            # the graph is permutation-equivariant: put the humans in LSTM order up front
+            index = order_humans(humans, mask, self.order)
+            humans, mask = _gather_rows(humans, index), mask.gather(1, index)
         x = torch.cat([self.w_r(robot).unsqueeze(1), self.w_h(humans)], dim=1)  # (B, M, w)
         node_mask = torch.cat([mask.new_ones(mask.shape[0], 1), mask], dim=1)  # (B, M)
         pair_hidden = torch.relu(self.w_a_i(x).unsqueeze(2) + self.w_a_j(x).unsqueeze(1))
@@ -314,31 +320,31 @@ class RelationalGraphEncoder(Encoder):
         h = x
         for w_l in self.gcn:
             h = torch.relu(a @ w_l(h)) + h
-        return self._pool(h, mask, humans), a[:, 0, 1:]
+        attention = a[:, 0, 1:]
+        if index is not None:
+            attention = torch.empty_like(attention).scatter_(1, index, attention)
+        return self._pool(h[:, 0], h[:, 1:], mask), attention
 
-    def _pool(self, h: Tensor, mask: Tensor, humans: Tensor) -> Tensor:
-        h_rob, h_obs = h[:, 0], h[:, 1:]
-        maskf = mask.unsqueeze(-1).to(h.dtype)
-        count = maskf.sum(dim=1).clamp(min=1.0)
+    def _pool(self, h_rob: Tensor, h_obs: Tensor, mask: Tensor) -> Tensor:
         p = self.pooling
         if p == "rob":
             return h_rob
+        if self.lstm is not None:  # h_obs is already in LSTM order, real humans first
+            lengths, all_full = mask.sum(dim=1), bool(mask.all())
+            if p == "lstm(rob+obs)":
+                seq = torch.cat([h_rob.unsqueeze(1), h_obs], dim=1)
+                return lstm_last_hidden(self.lstm, seq, lengths + 1, all_full)
+            return torch.cat([h_rob, lstm_last_hidden(self.lstm, h_obs, lengths, all_full)], 1)
+        maskf = mask.unsqueeze(-1).to(h_obs.dtype)
         if p == "sum(rob+obs)":
             return h_rob + (h_obs * maskf).sum(dim=1)
-        if p == "rob+obs":
-            return torch.cat([h_rob, (h_obs * maskf).sum(dim=1) / count], dim=1)
+        count = maskf.sum(dim=1).clamp(min=1.0)
         if p == "rob+mlp(obs)":
             return torch.cat([h_rob, (self.pool_mlp(h_obs) * maskf).sum(dim=1) / count], dim=1)
-        if p == "mlp(rob+obs)":
-            return self.pool_mlp(torch.cat([h_rob, (h_obs * maskf).sum(dim=1) / count], dim=1))
-        index = order_humans(humans, mask, self.order)
-        seq = _gather_rows(h_obs, index)
-        lengths = mask.sum(dim=1)
-        all_full = bool(mask.all())
-        if p == "lstm(rob+obs)":
-            seq = torch.cat([h_rob.unsqueeze(1), seq], dim=1)
-            return lstm_last_hidden(self.lstm, seq, lengths + 1, all_full)
-        return torch.cat([h_rob, lstm_last_hidden(self.lstm, seq, lengths, all_full)], dim=1)
+        mean_obs = (h_obs * maskf).sum(dim=1) / count
+        if p == "rob+obs":
+            return torch.cat([h_rob, mean_obs], dim=1)
+        return self.pool_mlp(torch.cat([h_rob, mean_obs], dim=1))  # mlp(rob+obs)
 
 
 def make_encoder(cfg: EncoderConfig) -> Encoder:

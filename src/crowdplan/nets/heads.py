@@ -8,7 +8,7 @@ from crowdplan.nets.encoders import mlp
 
 
 class QHead(nn.Module):
-    """Twin Q-heads (clipped double Q): two independent MLPs ``in_dim -> 128 -> 128 -> n_actions``."""
+    """Twin Q heads (clipped double Q): two independent MLPs in_dim -> 128 -> 128 -> n_actions."""
 
     def __init__(self, in_dim: int, n_actions: int = 81, hidden: tuple[int, ...] = (128, 128)):
         super().__init__()

@@ -38,9 +38,17 @@ ROBOT_COLOR = "#f2b01e"
 ROBOT_EDGE = "#1a1a1a"
 ROBOT_GOAL_COLOR = "#d62728"
 SCORE_CMAP = "Reds"
-# tab10 without orange and olive (too close to the robot's gold).
-HUMAN_COLORS = ("#1f77b4", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#17becf",
-                "#d62728")
+# tab10 without orange and olive (too close to the robot's gold) and red (the robot's goal).
+HUMAN_COLORS = (
+    "#1f77b4",
+    "#2ca02c",
+    "#9467bd",
+    "#8c564b",
+    "#e377c2",
+    "#7f7f7f",
+    "#17becf",
+    "#393b79",
+)
 MARGIN = 0.8  # metres around the scene
 
 
@@ -92,11 +100,27 @@ class _Style:
 
 def _draw_static(ax, trace: Trace, style: _Style) -> None:
     """Goals, limits, labels and grid: everything that does not change during the episode."""
-    ax.plot(*trace.robot_goal, marker="*", markersize=15, color=ROBOT_GOAL_COLOR,
-            markeredgecolor="black", markeredgewidth=0.6, linestyle="none", zorder=2)
+    ax.plot(
+        *trace.robot_goal,
+        marker="*",
+        markersize=15,
+        color=ROBOT_GOAL_COLOR,
+        markeredgecolor="black",
+        markeredgewidth=0.6,
+        linestyle="none",
+        zorder=2,
+    )
     for i in range(style.n):
-        ax.plot(*trace.human_goal[i], marker="x", markersize=6, markeredgewidth=1.5,
-                color=style.colors[i], linestyle="none", alpha=0.8, zorder=2)
+        ax.plot(
+            *trace.human_goal[i],
+            marker="x",
+            markersize=6,
+            markeredgewidth=1.5,
+            color=style.colors[i],
+            linestyle="none",
+            alpha=0.8,
+            zorder=2,
+        )
     xlim, ylim = scene_limits(trace)
     ax.set_xlim(*xlim)
     ax.set_ylim(*ylim)
@@ -111,37 +135,103 @@ def _legend(target, style: _Style) -> None:
     """The legend: below the axes on a constrained-layout figure (so that it never hides a
     trajectory), else in the upper right corner of the axes ``target``."""
     handles = [
-        Line2D([], [], marker="o", markersize=8, color="none", markerfacecolor=ROBOT_COLOR,
-               markeredgecolor=ROBOT_EDGE, label="robot"),
-        Line2D([], [], marker="*", markersize=10, color="none",
-               markerfacecolor=ROBOT_GOAL_COLOR, markeredgecolor="black", label="robot goal"),
+        Line2D(
+            [],
+            [],
+            marker="o",
+            markersize=8,
+            color="none",
+            markerfacecolor=ROBOT_COLOR,
+            markeredgecolor=ROBOT_EDGE,
+            label="robot",
+        ),
+        Line2D(
+            [],
+            [],
+            marker="*",
+            markersize=10,
+            color="none",
+            markerfacecolor=ROBOT_GOAL_COLOR,
+            markeredgecolor="black",
+            label="robot goal",
+        ),
     ]
     if style.n:
         handles += [
-            Line2D([], [], marker="o", markersize=8, color="none", markerfacecolor="white",
-                   markeredgecolor="0.35", markeredgewidth=1.5, label="humans"),
-            Line2D([], [], marker="x", markersize=6, color="0.35", linestyle="none",
-                   label="human goals"),
-            Line2D([], [], marker="o", markersize=8, color="none", markerfacecolor="white",
-                   markeredgecolor="0.35", alpha=0.55, label="time stamps (s)"),
+            Line2D(
+                [],
+                [],
+                marker="o",
+                markersize=8,
+                color="none",
+                markerfacecolor="white",
+                markeredgecolor="0.35",
+                markeredgewidth=1.5,
+                label="humans",
+            ),
+            Line2D(
+                [],
+                [],
+                marker="x",
+                markersize=6,
+                color="0.35",
+                linestyle="none",
+                label="human goals",
+            ),
+            Line2D(
+                [],
+                [],
+                marker="o",
+                markersize=8,
+                color="none",
+                markerfacecolor="white",
+                markeredgecolor="0.35",
+                alpha=0.55,
+                label="time stamps (s)",
+            ),
         ]
     if isinstance(target, Figure):
-        target.legend(handles=handles, loc="outside lower center", ncols=len(handles),
-                      fontsize=6.5, frameon=False, handletextpad=0.2, columnspacing=0.9)
+        target.legend(
+            handles=handles,
+            loc="outside lower center",
+            ncols=len(handles),
+            fontsize=6.5,
+            frameon=False,
+            handletextpad=0.2,
+            columnspacing=0.9,
+        )
     else:
         target.legend(handles=handles, loc="upper right", fontsize=6.5, framealpha=0.85)
 
 
 def _segment_artists(ax, trace: Trace, style: _Style, a: int, b: int) -> list:
     """Trajectory lines from state a to state b."""
-    out = [ax.add_artist(Line2D(trace.robot_pos[a : b + 1, 0], trace.robot_pos[a : b + 1, 1],
-                                color=ROBOT_COLOR, linewidth=2.0, zorder=3,
-                                solid_capstyle="round"))]
+    out = [
+        ax.add_artist(
+            Line2D(
+                trace.robot_pos[a : b + 1, 0],
+                trace.robot_pos[a : b + 1, 1],
+                color=ROBOT_COLOR,
+                linewidth=2.0,
+                zorder=3,
+                solid_capstyle="round",
+            )
+        )
+    ]
     for i in range(style.n):
-        out.append(ax.add_artist(Line2D(
-            trace.human_pos[a : b + 1, i, 0], trace.human_pos[a : b + 1, i, 1],
-            color=style.colors[i], linewidth=1.2, alpha=0.8, zorder=3, solid_capstyle="round",
-        )))
+        out.append(
+            ax.add_artist(
+                Line2D(
+                    trace.human_pos[a : b + 1, i, 0],
+                    trace.human_pos[a : b + 1, i, 1],
+                    color=style.colors[i],
+                    linewidth=1.2,
+                    alpha=0.8,
+                    zorder=3,
+                    solid_capstyle="round",
+                )
+            )
+        )
     return out
 
 
@@ -151,48 +241,135 @@ def _stamp_artists(ax, trace: Trace, style: _Style, k: int) -> list:
     out = []
     for i in range(style.n):
         x, y = trace.human_pos[k, i]
-        out.append(ax.add_artist(Circle((x, y), style.radii[i], facecolor="white",
-                                        edgecolor=style.colors[i], linewidth=0.8, alpha=0.55,
-                                        zorder=4)))
-        out.append(ax.text(x, y, label, ha="center", va="center", fontsize=5.5,
-                           color=style.colors[i], zorder=5))
+        out.append(
+            ax.add_artist(
+                Circle(
+                    (x, y),
+                    style.radii[i],
+                    facecolor="white",
+                    edgecolor=style.colors[i],
+                    linewidth=0.8,
+                    alpha=0.55,
+                    zorder=4,
+                )
+            )
+        )
+        out.append(
+            ax.text(
+                x, y, label, ha="center", va="center", fontsize=5.5, color=style.colors[i], zorder=5
+            )
+        )
     x, y = trace.robot_pos[k]
-    out.append(ax.add_artist(Circle((x, y), style.r_robot, facecolor=ROBOT_COLOR,
-                                    edgecolor=ROBOT_EDGE, linewidth=0.5, alpha=0.45, zorder=4)))
-    out.append(ax.text(x, y, label, ha="center", va="center", fontsize=5.5, color="black",
-                       zorder=5))
+    out.append(
+        ax.add_artist(
+            Circle(
+                (x, y),
+                style.r_robot,
+                facecolor=ROBOT_COLOR,
+                edgecolor=ROBOT_EDGE,
+                linewidth=0.5,
+                alpha=0.45,
+                zorder=4,
+            )
+        )
+    )
+    out.append(
+        ax.text(x, y, label, ha="center", va="center", fontsize=5.5, color="black", zorder=5)
+    )
     return out
 
 
-def _current_artists(ax, trace: Trace, style: _Style, t: int) -> list:
-    """Agents at state t (solid), their scores and the clock."""
-    out = []
-    # Score of the decision taken in state t (the last decision for the final state).
-    scores = None if style.scores is None else style.scores[min(t, len(style.scores) - 1)]
-    for i in range(style.n):
-        x, y = trace.human_pos[t, i]
-        shade = None if scores is None else style.norm(scores[i])
-        face = "white" if shade is None else style.cmap(shade)
-        out.append(ax.add_artist(Circle((x, y), style.radii[i], facecolor=face,
-                                        edgecolor=style.colors[i], linewidth=2.0, zorder=6)))
-        out.append(ax.text(x, y, str(i), ha="center", va="center", fontsize=7,
-                           fontweight="bold", zorder=7,
-                           color="white" if shade is not None and shade > 0.6 else "black"))
-        if scores is not None:
-            r = style.radii[i]
-            out.append(ax.text(x + 0.75 * r, y + 0.75 * r, f"{scores[i]:.2f}", ha="left",
-                               va="bottom", fontsize=7, color="black", zorder=8,
-                               bbox={"boxstyle": "round,pad=0.15", "facecolor": "white",
-                                     "edgecolor": style.colors[i], "linewidth": 0.8,
-                                     "alpha": 0.85}))
-    x, y = trace.robot_pos[t]
-    out.append(ax.add_artist(Circle((x, y), style.r_robot, facecolor=ROBOT_COLOR,
-                                    edgecolor=ROBOT_EDGE, linewidth=1.5, zorder=6)))
-    out.append(ax.text(0.02, 0.98, f"t = {t * trace.dt:.2f} s", transform=ax.transAxes,
-                       ha="left", va="top", fontsize=8, zorder=9,
-                       bbox={"boxstyle": "round,pad=0.2", "facecolor": "white", "alpha": 0.8,
-                             "edgecolor": "0.7"}))
-    return out
+class _Current:
+    """The artists of the current state (agents, scores, clock), created once and moved."""
+
+    def __init__(self, ax, style: _Style) -> None:
+        self.style = style
+        bbox = {"boxstyle": "round,pad=0.2", "facecolor": "white", "alpha": 0.8, "edgecolor": "0.7"}
+        self.discs = [
+            ax.add_artist(
+                Circle(
+                    (0.0, 0.0),
+                    style.radii[i],
+                    facecolor="white",
+                    edgecolor=style.colors[i],
+                    linewidth=2.0,
+                    zorder=6,
+                )
+            )
+            for i in range(style.n)
+        ]
+        self.robot = ax.add_artist(
+            Circle(
+                (0.0, 0.0),
+                style.r_robot,
+                facecolor=ROBOT_COLOR,
+                edgecolor=ROBOT_EDGE,
+                linewidth=1.5,
+                zorder=6,
+            )
+        )
+        self.ids = [
+            ax.text(
+                0.0, 0.0, str(i), ha="center", va="center", fontsize=7, fontweight="bold", zorder=7
+            )
+            for i in range(style.n)
+        ]
+        self.labels = []
+        if style.scores is not None:
+            self.labels = [
+                ax.text(
+                    0.0,
+                    0.0,
+                    "",
+                    ha="left",
+                    va="bottom",
+                    fontsize=7,
+                    color="black",
+                    zorder=8,
+                    bbox={
+                        "boxstyle": "round,pad=0.15",
+                        "facecolor": "white",
+                        "edgecolor": style.colors[i],
+                        "linewidth": 0.8,
+                        "alpha": 0.85,
+                    },
+                )
+                for i in range(style.n)
+            ]
+        self.clock = ax.text(
+            0.02,
+            0.98,
+            "",
+            transform=ax.transAxes,
+            ha="left",
+            va="top",
+            fontsize=8,
+            zorder=9,
+            bbox=bbox,
+        )
+
+    def artists(self) -> list:
+        """All artists, in drawing (z) order."""
+        return [*self.discs, self.robot, *self.ids, *self.labels, self.clock]
+
+    def place(self, trace: Trace, t: int) -> None:
+        """Show state t; the scores are those of the decision taken in state t (the last
+        decision for the final state)."""
+        style = self.style
+        scores = None if style.scores is None else style.scores[min(t, len(style.scores) - 1)]
+        for i in range(style.n):
+            x, y = trace.human_pos[t, i]
+            self.discs[i].set_center((x, y))
+            self.ids[i].set_position((x, y))
+            if scores is not None:
+                shade = style.norm(scores[i])
+                self.discs[i].set_facecolor(style.cmap(shade))
+                self.ids[i].set_color("white" if shade > 0.6 else "black")
+                r = style.radii[i]
+                self.labels[i].set_position((x + 0.75 * r, y + 0.75 * r))
+                self.labels[i].set_text(f"{scores[i]:.2f}")
+        self.robot.set_center(tuple(trace.robot_pos[t]))
+        self.clock.set_text(f"t = {t * trace.dt:.2f} s")
 
 
 def _check_upto(trace: Trace, upto: int | None) -> int:
@@ -227,15 +404,16 @@ def draw_trace(
     _segment_artists(ax, trace, style, 0, t)
     for k in range(0, t, stamp_every) if stamp_every > 0 else ():
         _stamp_artists(ax, trace, style, k)
-    _current_artists(ax, trace, style, t)
+    _Current(ax, style).place(trace, t)
     fig = ax.get_figure(root=True)
     constrained = fig is not None and isinstance(fig.get_layout_engine(), ConstrainedLayoutEngine)
     _legend(fig if constrained else ax, style)
 
 
 def _figure(size: float, dpi: int, with_scores: bool) -> tuple[Figure, object]:
-    fig = Figure(figsize=(size + (0.7 if with_scores else 0.0), size + 0.3), dpi=dpi,
-                 layout="constrained")
+    fig = Figure(
+        figsize=(size + (0.7 if with_scores else 0.0), size + 0.3), dpi=dpi, layout="constrained"
+    )
     FigureCanvasAgg(fig)
     return fig, fig.add_subplot()
 
@@ -307,6 +485,7 @@ def animation_frames(
     canvas.draw()  # solves the layout once; every frame then has the same geometry
     fig.set_layout_engine("none")
     background = canvas.copy_from_bbox(fig.bbox)
+    current = _Current(ax, style)
     frames = []
     for t in range(len(trace.robot_pos)):
         canvas.restore_region(background)
@@ -317,9 +496,9 @@ def animation_frames(
             ax.draw_artist(artist)
             artist.remove()
         background = canvas.copy_from_bbox(fig.bbox)
-        for artist in _current_artists(ax, trace, style, t):
+        current.place(trace, t)
+        for artist in current.artists():
             ax.draw_artist(artist)
-            artist.remove()
         frames.append(_canvas_rgb(fig))
     return frames
 
@@ -337,8 +516,15 @@ def save_gif(trace: Trace, path: str | Path, title: str = "", fps: float = 4) ->
     ]
     tmp = _atomic_target(path)
     try:
-        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:],
-                       duration=int(round(1000 / fps)), loop=0, optimize=False)
+        images[0].save(
+            tmp,
+            format="GIF",
+            save_all=True,
+            append_images=images[1:],
+            duration=int(round(1000 / fps)),
+            loop=0,
+            optimize=False,
+        )
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
