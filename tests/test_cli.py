@@ -27,8 +27,16 @@ TINY_TRAIN = {
 def test_eval_writes_summary_and_episodes(tmp_path, capsys):
     assert main(["eval", "--policy", "orca", "--episodes", "4", "--out", str(tmp_path)]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
-    for key in ("success_rate", "collision_rate", "timeout_rate", "time_to_goal",
-                "mean_distance", "discomfort_frequency", "mean_reward", "path_length"):
+    for key in (
+        "success_rate",
+        "collision_rate",
+        "timeout_rate",
+        "time_to_goal",
+        "mean_distance",
+        "discomfort_frequency",
+        "mean_reward",
+        "path_length",
+    ):
         assert "value" in summary[key] and len(summary[key]["ci95"]) == 2
     lines = (tmp_path / "episodes.jsonl").read_text().splitlines()
     assert [json.loads(x)["seed"] for x in lines] == [1000, 1001, 1002, 1003]
@@ -37,16 +45,39 @@ def test_eval_writes_summary_and_episodes(tmp_path, capsys):
 
 def test_eval_square_and_humans(tmp_path):
     out = tmp_path / "sq"
-    args = ["eval", "--scenario", "square_crossing", "--humans", "2", "--episodes", "2",
-            "--out", str(out)]
+    args = [
+        "eval",
+        "--scenario",
+        "square_crossing",
+        "--humans",
+        "2",
+        "--episodes",
+        "2",
+        "--out",
+        str(out),
+    ]
     assert main(args) == 0
     assert json.loads((out / "summary.json").read_text())["meta"]["world"]["humans"] == 2
 
 
 def test_render_png_and_gif(tmp_path):
     for name in ("case.png", "case.gif"):
-        assert main(["render", "--policy", "orca", "--case", "1", "--humans", "2",
-                     "--out", str(tmp_path / name)]) == 0
+        assert (
+            main(
+                [
+                    "render",
+                    "--policy",
+                    "orca",
+                    "--case",
+                    "1",
+                    "--humans",
+                    "2",
+                    "--out",
+                    str(tmp_path / name),
+                ]
+            )
+            == 0
+        )
         assert (tmp_path / name).stat().st_size > 0
 
 
@@ -72,14 +103,45 @@ def test_train_eval_render_model(tmp_path, capsys):
     config.write_text(yaml.safe_dump(TINY_TRAIN))
     run = tmp_path / "run"
     assert main(["train", "--config", str(config), "--out", str(run), "--no-progress"]) == 0
-    for name in ("config.yaml", "meta.json", "episodes.csv", "validation.csv", "checkpoint.pt",
-                 "best_model.pt", "final_model.pt", "test/summary.json"):
+    for name in (
+        "config.yaml",
+        "meta.json",
+        "episodes.csv",
+        "validation.csv",
+        "checkpoint.pt",
+        "best_model.pt",
+        "final_model.pt",
+        "test/summary.json",
+    ):
         assert (run / name).exists(), name
     meta = json.loads((run / "meta.json").read_text())
     assert meta["episodes"] >= 4 and meta["hours_per_10k_episodes"] > 0
     assert main(["eval", "--model", str(run), "--episodes", "2", "--humans", "2"]) == 0
-    assert main(["render", "--model", str(run), "--case", "0", "--humans", "2",
-                 "--out", str(tmp_path / "m.png")]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "--model",
+                str(run),
+                "--case",
+                "0",
+                "--humans",
+                "2",
+                "--out",
+                str(tmp_path / "m.png"),
+            ]
+        )
+        == 0
+    )
     # a second fresh run into the same folder is refused instead of overwriting it
     assert main(["train", "--config", str(config), "--out", str(run)]) == 2
     assert "already holds a run" in capsys.readouterr().err
+
+
+def test_report_from_result_folders(tmp_path, capsys):
+    assert main(["eval", "--episodes", "2", "--out", str(tmp_path / "orca")]) == 0
+    capsys.readouterr()
+    assert main(["report", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "| orca | circle_crossing | 5 | 2 |" in out
+    assert main(["report", str(tmp_path / "missing")]) == 2

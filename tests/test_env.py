@@ -14,14 +14,20 @@ def test_registered_and_check_env(env_id):
     env = gym.make(env_id, humans=3)
     check_env(env.unwrapped, skip_render_check=True)
     obs, info = env.reset(seed=1000)
-    assert obs["robot"].shape == (9,) and obs["humans"].shape == (3, 5) and obs["mask"].shape == (3,)
+    assert (
+        obs["robot"].shape == (9,) and obs["humans"].shape == (3, 5) and obs["mask"].shape == (3,)
+    )
     assert env.action_space == gym.spaces.Discrete(81)
 
 
 def test_options_pass_through_and_padding():
     env = gym.make(
-        "crowdplan/CircleCrossing-v0", humans=2, max_humans=6, visible_robot=True,
-        kinematics="unicycle", speed_sampling="exponential",
+        "crowdplan/CircleCrossing-v0",
+        humans=2,
+        max_humans=6,
+        visible_robot=True,
+        kinematics="unicycle",
+        speed_sampling="exponential",
     )
     obs, _ = env.reset(seed=0)
     assert obs["humans"].shape == (6, 5)
@@ -79,3 +85,12 @@ def test_vector_env_autoreset_same_step():
             np.testing.assert_allclose(obs["robot"][done, :2], [[0.0, -4.0]] * done.sum())
     assert saw_final
     assert venv.next_seed > 2004
+
+
+def test_zero_humans():
+    env = CrowdNavEnv(humans=0)
+    check_env(env, skip_render_check=True)
+    obs, _ = env.reset(seed=1000)
+    assert obs["humans"].shape == (0, 5)
+    _, _, _, _, info = env.step(1)
+    assert info["d_min"] == float("inf")

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from crowdplan.algos.orca_planner import OrcaPlanner
 from crowdplan import evaluation
+from crowdplan.algos.orca_planner import OrcaPlanner
 from crowdplan.config import WorldConfig
 from crowdplan.evaluation import (
     episode_record,
@@ -19,9 +19,7 @@ from crowdplan.evaluation import (
 def _record(outcome, rewards, d_min, speed=1.0):
     steps = len(rewards)
     vel = np.tile([0.0, speed], (steps, 1))
-    return episode_record(
-        0, outcome, np.array(rewards), np.array(d_min), vel, 8.0, WorldConfig()
-    )
+    return episode_record(0, outcome, np.array(rewards), np.array(d_min), vel, 8.0, WorldConfig())
 
 
 def test_episode_record_by_hand():

@@ -96,6 +96,13 @@ def cmd_train(args: argparse.Namespace) -> int:
     return train_from_cli(args)
 
 
+def cmd_report(args: argparse.Namespace) -> int:
+    from crowdplan.analysis.report import report
+
+    print(report(args.folders), end="")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="crowdplan", description="Robot navigation among dense crowds."
@@ -128,6 +135,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--no-progress", action="store_true", help="plain log lines, no progress bar")
     p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("report", help="markdown tables from result and run folders")
+    p.add_argument("folders", nargs="+", help="folders searched for summary.json and runs")
+    p.set_defaults(func=cmd_report)
     return parser
 
 

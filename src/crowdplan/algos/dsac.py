@@ -155,7 +155,7 @@ class DSAC:
     @property
     def alpha(self) -> float:
         """Current temperature."""
-        return float(self.log_alpha.exp())
+        return float(self.log_alpha.detach().exp())
 
     @torch.no_grad()
     def act(

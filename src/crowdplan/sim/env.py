@@ -28,7 +28,8 @@ def observation_space(max_humans: int) -> spaces.Dict:
         {
             "robot": spaces.Box(-np.inf, np.inf, (9,), np.float64),
             "humans": spaces.Box(-np.inf, np.inf, (max_humans, 5), np.float64),
-            "mask": spaces.MultiBinary(max_humans),
+            # a Box rather than MultiBinary, which cannot have zero elements (N = 0)
+            "mask": spaces.Box(0, 1, (max_humans,), np.int8),
         }
     )
 

@@ -1,0 +1,110 @@
+"""Markdown tables generated from result folders (never typed by hand).
+
+``crowdplan report DIR [DIR ...]`` finds every ``summary.json`` under the given folders and prints
+one row per evaluation; training runs (folders with ``meta.json`` + ``validation.csv``) also get
+their training time and last validation.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+COLUMNS = [
+    ("success_rate", "success", 3),
+    ("collision_rate", "collision", 3),
+    ("timeout_rate", "timeout", 3),
+    ("time_to_goal", "time to goal (s)", 2),
+    ("mean_distance", "mean dist (m)", 3),
+    ("discomfort_frequency", "discomfort", 3),
+    ("mean_reward", "mean reward", 3),
+    ("path_length", "path (m)", 2),
+]
+
+
+def _cell(entry: dict, digits: int) -> str:
+    value, ci = entry.get("value"), entry.get("ci95") or [None, None]
+    if value is None:
+        return "n/a"
+    if ci[0] is None:
+        return f"{value:.{digits}f}"
+    return f"{value:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
+
+
+def summary_table(paths: list[Path]) -> str:
+    """One markdown row per summary.json: method, scenario, humans, cases, metrics with CIs."""
+    header = ["result", "policy", "scenario", "N", "cases"] + [label for _, label, _ in COLUMNS]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for path in paths:
+        data = json.loads(path.read_text())
+        meta = data.get("meta", {})
+        world = meta.get("world", {})
+        row = [
+            str(path.parent),
+            meta.get("policy", "?"),
+            world.get("scenario", "?"),
+            str(world.get("humans", "?")),
+            str(data["episodes"]["value"]),
+        ] + [_cell(data[key], digits) for key, _, digits in COLUMNS]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def training_table(run_dirs: list[Path]) -> str:
+    """Training progress of run folders: episodes, hours per 10k episodes, last validation."""
+    header = [
+        "run",
+        "seed",
+        "episodes",
+        "env steps",
+        "h / 10k episodes",
+        "last val success",
+        "last val reward",
+        "best val reward",
+    ]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for run in run_dirs:
+        meta = json.loads((run / "meta.json").read_text())
+        with open(run / "validation.csv") as f:
+            rows = list(csv.DictReader(f))
+        last = rows[-1] if rows else {}
+        best = max((float(r["mean_reward"]) for r in rows), default=float("nan"))
+        lines.append(
+            "| "
+            + " | ".join(
+                [
+                    str(run),
+                    str(meta["seed"]),
+                    str(meta["episodes"]),
+                    str(meta["env_steps"]),
+                    f"{meta['hours_per_10k_episodes']:.2f}",
+                    f"{float(last.get('success_rate', 'nan')):.3f}",
+                    f"{float(last.get('mean_reward', 'nan')):.3f}",
+                    f"{best:.3f}",
+                ]
+            )
+            + " |"
+        )
+    return "\n".join(lines)
+
+
+def report(folders: list[str]) -> str:
+    """Both tables for everything found under ``folders``."""
+    summaries, runs = [], []
+    for folder in folders:
+        root = Path(folder)
+        if not root.exists():
+            raise FileNotFoundError(f"result folder {root} does not exist")
+        summaries += sorted(root.rglob("summary.json"))
+        runs += sorted(
+            p.parent for p in root.rglob("meta.json") if (p.parent / "validation.csv").exists()
+        )
+    if not summaries and not runs:
+        raise FileNotFoundError(f"no summary.json or training run under {folders}")
+    parts = []
+    if summaries:
+        parts += ["### Evaluations (95% intervals in brackets)", "", summary_table(summaries)]
+    if runs:
+        parts += ["", "### Training runs", "", training_table(runs)]
+    return "\n".join(parts) + "\n"
