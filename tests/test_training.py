@@ -98,3 +98,11 @@ def test_shipped_presets_load():
     for name in ("raw", "rg", "aw", "sa", "lsa"):
         config = load_config(f"configs/{name}_dsac.yaml")
         assert config.encoder.name == name and config.world.humans == 5
+
+
+def test_update_to_data_ratio(tmp_path):
+    config = config_from_dict({**TINY, "dsac": {"batch_size": 16, "updates_per_step": 0.5}})
+    trainer = Trainer(dataclasses.replace(config, episodes=2), tmp_path / "utd", progress=False)
+    trainer.run()
+    learning_steps = trainer.env_steps - TINY["learning_starts"] + TINY["num_envs"]
+    assert trainer.agent.n_updates == learning_steps // 2

@@ -188,6 +188,8 @@ class Trainer:
         self._next_val = cfg.val_interval
         self._next_ckpt = cfg.checkpoint_interval
         self._tb = None
+        self._last_stats: dict | None = None
+        self._update_credit = 0.0
 
     # -------------------------------------------------------------- rollouts + updates
     def _act(self, feats) -> np.ndarray:
@@ -243,10 +245,11 @@ class Trainer:
         self.ep_steps[done] = 0
         self.obs = next_obs
         if len(self.buffer) >= cfg.learning_starts:
-            n_updates = int(round(cfg.num_envs * cfg.dsac.updates_per_step))
-            for _ in range(n_updates):
-                stats = self.agent.update(self.buffer.sample(cfg.dsac.batch_size))
-            self._last_stats = stats
+            # fractional update-to-data ratios carry their remainder to the next step
+            self._update_credit += cfg.num_envs * cfg.dsac.updates_per_step
+            while self._update_credit >= 1.0:
+                self._last_stats = self.agent.update(self.buffer.sample(cfg.dsac.batch_size))
+                self._update_credit -= 1.0
 
     # -------------------------------------------------------------- validation / logs
     def policy(self) -> DSACPolicy:
@@ -300,7 +303,7 @@ class Trainer:
     def _log(self) -> None:
         done = len(self.episodes)
         success, reward = self._recent()
-        stats = getattr(self, "_last_stats", None)
+        stats = self._last_stats
         if stats:
             self.update_stats.append({"episode": done, "env_steps": self.env_steps, **stats})
         tb = self._tensorboard()
@@ -309,7 +312,9 @@ class Trainer:
         for key, value in (stats or {}).items():
             tb.add_scalar(f"update/{key}", value, done)
         hours = self.train_seconds / max(done, 1) * 10000 / 3600
+        filled = int(20 * min(done / self.config.episodes, 1.0))
         line = (
+            f"[{'#' * filled}{'.' * (20 - filled)}] "
             f"episode {done:>6}/{self.config.episodes}  success(100) {success:5.2f}  "
             f"reward(100) {reward:+.3f}  alpha {stats['alpha'] if stats else float('nan'):.3f}  "
             f"{hours:.2f} h/10k episodes"
@@ -374,7 +379,8 @@ class Trainer:
                 "next_ckpt": self._next_ckpt,
             },
             "logs": (self.episodes, self.validations, self.update_stats),
-            "last_stats": getattr(self, "_last_stats", None),
+            "last_stats": self._last_stats,
+            "update_credit": self._update_credit,
         }
         self.write_logs()
         _torch_save_atomic(self.run_dir / "checkpoint.pt", state)
@@ -408,6 +414,7 @@ class Trainer:
         )
         self.episodes, self.validations, self.update_stats = state["logs"]
         self._last_stats = state["last_stats"]
+        self._update_credit = state.get("update_credit", 0.0)
 
     # -------------------------------------------------------------- main loop
     def run(self) -> None:
