@@ -178,7 +178,7 @@ class Encoder(nn.Module):
 
 
 class RawEncoder(Encoder):
-    """ "Source state" encoder: robot (6) + ``max_humans`` x human (7) -> MLP 150 -> 100 -> 56.
+    """Source-state ("raw") encoder: robot (6) + ``max_humans`` x human (7) -> MLP 150-100-56.
 
     Humans are ordered by ``lstm_order`` (default decreasing distance) and right-aligned in the
     ``max_humans`` slots, so with the default order the closest human always sits in the last slot;
