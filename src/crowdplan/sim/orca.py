@@ -31,6 +31,11 @@ __all__ = ["orca_velocities", "preferred_velocities"]
 # Tolerance for parallel lines, as in the paper's reference implementation.
 EPSILON = 1e-5
 
+# Kernel options: no division-by-zero checks (no division here can have a zero divisor; numpy's
+# error model gives inf / nan like float arithmetic would, Python's raises and branches on every
+# division), and the 2-D programs inlined into their callers (a call per agent otherwise).
+_JIT = {"cache": True, "error_model": "numpy"}
+
 
 @numba.njit(cache=True, inline="always")
 def _det(ax: float, ay: float, bx: float, by: float) -> float:
@@ -38,7 +43,7 @@ def _det(ax: float, ay: float, bx: float, by: float) -> float:
     return ax * by - ay * bx
 
 
-@numba.njit(cache=True)
+@numba.njit(**_JIT, inline="always")
 def _lp1(
     pts: np.ndarray,
     dirs: np.ndarray,
@@ -93,7 +98,7 @@ def _lp1(
     return True, px + t * dx, py + t * dy
 
 
-@numba.njit(cache=True)
+@numba.njit(**_JIT, inline="always")
 def _lp2(
     pts: np.ndarray,
     dirs: np.ndarray,
@@ -133,7 +138,7 @@ def _lp2(
     return n_lines, rx, ry
 
 
-@numba.njit(cache=True)
+@numba.njit(**_JIT)
 def _lp3(
     pts: np.ndarray,
     dirs: np.ndarray,
@@ -190,7 +195,7 @@ def _lp3(
     return rx, ry
 
 
-@numba.njit(cache=True)
+@numba.njit(**_JIT)
 def _orca_kernel(
     pos: np.ndarray,
     vel: np.ndarray,
