@@ -70,3 +70,12 @@ def test_traces_match_records():
     assert rec.trace.robot_pos.shape == (rec.steps + 1, 2)
     assert rec.trace.human_pos.shape == (rec.steps + 1, 3, 2)
     np.testing.assert_allclose(rec.trace.robot_pos[0], [0.0, -4.0])
+
+
+def test_result_files_are_readable_by_others(tmp_path):
+    from crowdplan.io import write_json
+
+    write_json(tmp_path / "x.json", {"a": float("nan")})
+    assert (tmp_path / "x.json").stat().st_mode & 0o044
+    assert (tmp_path / "x.json").read_text().strip().endswith("}")
+    assert "null" in (tmp_path / "x.json").read_text()
