@@ -6,6 +6,7 @@ A run folder holds:
     episodes.csv         one row per training episode (seed, outcome, steps, return)
     validation.csv       one row per validation (the 100 validation cases, greedy policy)
     updates.csv          losses / alpha / entropy every log interval
+    curves.png           training and validation reward / success curves
     tb/                  TensorBoard logs of the same curves
     checkpoint.pt        everything needed to resume exactly (written atomically)
     best_model.pt        policy with the best validation reward so far; final_model.pt at the end
@@ -31,6 +32,7 @@ import yaml
 from crowdplan import evaluation
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.dsac import DSAC, DSACConfig
+from crowdplan.analysis.plots import plot_training_curves
 from crowdplan.config import WorldConfig, to_dict
 from crowdplan.features import robot_centric
 from crowdplan.io import atomic_write, write_json
@@ -338,6 +340,8 @@ class Trainer:
         _write_csv(self.run_dir / "episodes.csv", self.episodes)
         _write_csv(self.run_dir / "validation.csv", self.validations)
         _write_csv(self.run_dir / "updates.csv", self.update_stats)
+        if self.episodes:
+            plot_training_curves(self.run_dir)
         done = len(self.episodes)
         write_json(
             self.run_dir / "meta.json",
