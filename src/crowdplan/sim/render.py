@@ -16,8 +16,6 @@ The picture of a trace (``draw_trace``):
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +27,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Circle
 
 from crowdplan.evaluation import Trace
+from crowdplan.io import atomic_write
 
 __all__ = ["RENDER_SUFFIXES", "draw_trace", "save_gif", "save_png", "save_render", "scene_rgb"]
 
@@ -432,14 +431,6 @@ def _has_scores(trace: Trace) -> bool:
     return trace.scores is not None and np.asarray(trace.scores).size > 0
 
 
-def _atomic_target(path: Path) -> Path:
-    """A temporary file beside ``path`` (same suffix); the caller renames it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    return Path(tmp)
-
-
 def save_png(trace: Trace, path: str | Path, title: str = "") -> Path:
     """The whole episode as one picture (final positions, time stamps along the way)."""
     path = Path(path)
@@ -450,12 +441,7 @@ def save_png(trace: Trace, path: str | Path, title: str = "") -> Path:
         _add_colorbar(fig, ax, trace)
     if title:
         ax.set_title(title, fontsize=9)
-    tmp = _atomic_target(path)
-    try:
-        fig.savefig(tmp, format="png")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    atomic_write(path, lambda f: fig.savefig(f, format="png"), mode="wb")
     return path
 
 
@@ -514,20 +500,19 @@ def save_gif(trace: Trace, path: str | Path, title: str = "", fps: float = 4) ->
         Image.fromarray(frame).quantize(colors=255, method=Image.Quantize.FASTOCTREE)
         for frame in animation_frames(trace, title)
     ]
-    tmp = _atomic_target(path)
-    try:
-        images[0].save(
-            tmp,
+    atomic_write(
+        path,
+        lambda f: images[0].save(
+            f,
             format="GIF",
             save_all=True,
             append_images=images[1:],
             duration=int(round(1000 / fps)),
             loop=0,
             optimize=False,
-        )
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+        ),
+        mode="wb",
+    )
     return path
 
 
