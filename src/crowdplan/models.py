@@ -17,6 +17,7 @@ from crowdplan.config import WorldConfig, to_dict
 from crowdplan.features import robot_centric
 from crowdplan.nets.encoders import EncoderConfig, make_encoder
 from crowdplan.policy import PolicyOutput
+from crowdplan.sim.actions import N_ACTIONS
 
 MODEL_FORMAT = "crowdplan-dsac-policy/1"
 SHIPPED_DIRS = (Path(__file__).resolve().parents[2] / "models", Path.cwd() / "models")
@@ -95,6 +96,11 @@ def load_model_policy(spec: str) -> tuple[DSACPolicy, WorldConfig]:
         **{k: tuple(v) if isinstance(v, list) else v for k, v in payload["dsac"].items()}
     )
     world = WorldConfig.from_dict(payload["world"])
+    if dsac.n_actions != N_ACTIONS:
+        raise ValueError(
+            f"{path} was trained for {dsac.n_actions} actions; the world's action table has "
+            f"{N_ACTIONS} (stop + 16 directions x 5 speeds)"
+        )
     actor = Actor(make_encoder(encoder), dsac.n_actions, dsac.policy_hidden, detach_encoder=False)
     try:
         actor.load_state_dict(payload["actor"])

@@ -1,0 +1,61 @@
+"""Model files: round trip, and clear errors for damaged or mismatched files."""
+
+import numpy as np
+import pytest
+import torch
+
+from crowdplan.algos.dsac import DSAC, DSACConfig
+from crowdplan.config import WorldConfig
+from crowdplan.models import load_model_policy, model_payload
+from crowdplan.nets.encoders import EncoderConfig
+
+
+def _save(path, encoder="lsa"):
+    agent = DSAC(DSACConfig(), EncoderConfig(name=encoder), seed=0)
+    payload = model_payload(
+        agent.actor, EncoderConfig(name=encoder), DSACConfig(), WorldConfig(), {}
+    )
+    torch.save(payload, path)
+    return agent
+
+
+def test_round_trip_gives_the_same_greedy_actions(tmp_path):
+    agent = _save(tmp_path / "m.pt")
+    policy, world = load_model_policy(str(tmp_path / "m.pt"))
+    assert world == WorldConfig()
+    rng = np.random.default_rng(0)
+    robot = np.tile([0.0, -4.0, 0.0, 0.0, 0.3, 0.0, 4.0, 1.0, np.pi / 2], (4, 1))
+    humans = np.concatenate([rng.uniform(-4, 4, (4, 5, 4)), np.full((4, 5, 1), 0.3)], axis=2)
+    out = policy.act(robot, humans, np.ones((4, 5), bool))
+    assert out.actions.shape == (4,) and out.scores.shape == (4, 5)
+    np.testing.assert_allclose(out.scores.sum(axis=1), 1.0, rtol=1e-5)
+    assert agent is not None
+
+
+def test_weights_of_another_encoder_are_refused(tmp_path):
+    _save(tmp_path / "m.pt", encoder="sa")
+    payload = torch.load(tmp_path / "m.pt", weights_only=True)
+    payload["encoder"]["name"] = "lsa"  # claims LSA but holds SA weights
+    torch.save(payload, tmp_path / "m.pt")
+    with pytest.raises(ValueError, match="do not match encoder 'lsa'"):
+        load_model_policy(str(tmp_path / "m.pt"))
+
+
+def test_corrupted_and_foreign_files(tmp_path):
+    _save(tmp_path / "m.pt")
+    data = (tmp_path / "m.pt").read_bytes()
+    (tmp_path / "m.pt").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match="cannot read model file"):
+        load_model_policy(str(tmp_path / "m.pt"))
+    torch.save({"weights": torch.zeros(3)}, tmp_path / "other.pt")
+    with pytest.raises(ValueError, match="not a crowdplan model file"):
+        load_model_policy(str(tmp_path / "other.pt"))
+
+
+def test_model_for_another_action_space_is_refused(tmp_path):
+    _save(tmp_path / "m.pt")
+    payload = torch.load(tmp_path / "m.pt", weights_only=True)
+    payload["dsac"]["n_actions"] = 17
+    torch.save(payload, tmp_path / "m.pt")
+    with pytest.raises(ValueError, match="trained for 17 actions"):
+        load_model_policy(str(tmp_path / "m.pt"))
