@@ -427,7 +427,6 @@ class Trainer:
         while len(self.episodes) < cfg.episodes:
             start = time.perf_counter()
             self._step()
-            self.train_seconds += time.perf_counter() - start
             done = len(self.episodes)
             if done >= self._next_log:
                 self._log()
@@ -439,6 +438,9 @@ class Trainer:
                     f"reward {row['mean_reward']:+.3f}"
                 )
                 self._next_val += cfg.val_interval
+            # wall clock of rollouts, updates, logging and validation; checkpoints excluded so
+            # that the time saved in a checkpoint is complete
+            self.train_seconds += time.perf_counter() - start
             if done >= self._next_ckpt:
                 self.checkpoint()
                 self._next_ckpt += cfg.checkpoint_interval
