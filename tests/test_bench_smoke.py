@@ -25,3 +25,13 @@ def test_bench_sim_quick():
         line for line in out.splitlines() if line.startswith("| 5 |") or line.startswith("| 20 |")
     ]
     assert len(rows) == 4  # E = 1 and E = 64 for each N
+
+
+def test_bench_update_quick():
+    script = SCRIPT.parent / "bench_update.py"
+    args = ["--batch", "16", "--warmup", "1", "--iters", "2", "--rounds", "1"]
+    result = subprocess.run(
+        [sys.executable, str(script), *args], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+    assert "| update ms |" in result.stdout and "ratio" in result.stdout
