@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 BIN := $(VENV)/bin
 DEMO := runs/demo
 
-.PHONY: setup demo test lint format bench
+.PHONY: setup demo test format bench publish results-orca
 
 setup: $(VENV)/.installed
 
@@ -31,3 +31,15 @@ format: setup
 bench: setup
 	$(PY) benchmarks/bench_sim.py
 	$(PY) benchmarks/bench_update.py
+
+# Copy the small artefacts of a training run into results/ and test its best model on 500 cases:
+#   make publish RUN=runs/lsa_dsac-s0
+publish: setup
+	@test -n "$(RUN)" || (echo "usage: make publish RUN=runs/<run>"; exit 2)
+	mkdir -p results/train/$(notdir $(RUN))
+	cp $(addprefix $(RUN)/,config.yaml meta.json episodes.csv validation.csv updates.csv curves.png best_model.pt) results/train/$(notdir $(RUN))/
+	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --out results/train/$(notdir $(RUN))/test
+
+results-orca: setup
+	$(BIN)/crowdplan eval --policy orca --scenario circle_crossing --episodes 500 --out results/orca/circle_crossing
+	$(BIN)/crowdplan eval --policy orca --scenario square_crossing --episodes 500 --out results/orca/square_crossing

@@ -88,6 +88,8 @@ def test_render_png_and_gif(tmp_path):
         (["eval", "--humans", "-2"], "humans must be an integer >= 0"),
         (["eval", "--option", "warp=1"], "unknown option(s) ['warp']"),
         (["eval", "--episodes", "0"], "--episodes must be >= 1"),
+        (["eval", "--batch-size", "0"], "--batch-size must be >= 1"),
+        (["render", "--case", "-1", "--out", "x.png"], "--case must be >= 0"),
         (["eval", "--model", "no-such-model"], "no model found"),
         (["render", "--case", "0", "--out", "x.bmp"], ".bmp"),
         (["train", "--config", "missing.yaml"], "does not exist"),

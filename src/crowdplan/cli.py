@@ -49,6 +49,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     config = _world_config(args, base)
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.batch_size < 1:
+        raise ValueError(f"--batch-size must be >= 1, got {args.batch_size}")
     seeds = (
         evaluation.validation_seeds(args.episodes)
         if args.split == "val"
