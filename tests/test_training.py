@@ -106,3 +106,10 @@ def test_update_to_data_ratio(tmp_path):
     trainer.run()
     learning_steps = trainer.env_steps - TINY["learning_starts"] + TINY["num_envs"]
     assert trainer.agent.n_updates == learning_steps // 2
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the error without CUDA")
+def test_cuda_without_cuda_is_explained(tmp_path):
+    config = config_from_dict({**TINY, "device": "cuda"})
+    with pytest.raises(ValueError, match="CUDA is not available"):
+        Trainer(config, tmp_path / "run", progress=False)

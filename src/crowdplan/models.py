@@ -36,13 +36,12 @@ class DSACPolicy:
     @torch.no_grad()
     def act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> PolicyOutput:
         feats = robot_centric(robot, humans, mask, self.unicycle)
+        device = next(self.actor.parameters()).device
         logits, attention = self.actor(
-            torch.from_numpy(feats.robot),
-            torch.from_numpy(feats.humans),
-            torch.from_numpy(feats.mask),
+            *(torch.from_numpy(x).to(device) for x in (feats.robot, feats.humans, feats.mask))
         )
-        actions = logits.argmax(dim=1).numpy()
-        return PolicyOutput(actions, None if attention is None else attention.numpy())
+        actions = logits.argmax(dim=1).cpu().numpy()
+        return PolicyOutput(actions, None if attention is None else attention.cpu().numpy())
 
 
 def model_payload(
@@ -55,7 +54,7 @@ def model_payload(
         "dsac": {k: list(v) if isinstance(v, tuple) else v for k, v in to_dict(dsac).items()},
         "world": to_dict(world),
         "info": info,
-        "actor": actor.state_dict(),
+        "actor": {k: v.cpu() for k, v in actor.state_dict().items()},
     }
 
 

@@ -63,6 +63,7 @@ class TrainConfig:
         log_interval: episodes between progress lines and update-statistics rows.
         test_episodes: test cases evaluated at the end (0 skips the final test).
         torch_threads: torch intra-op threads (1 is fastest for these small networks).
+        device: where the networks train, "cpu" or a CUDA device such as "cuda" (optional).
     """
 
     name: str = "lsa_dsac"
@@ -78,6 +79,7 @@ class TrainConfig:
     log_interval: int = 50
     test_episodes: int = 500
     torch_threads: int = 1
+    device: str = "cpu"
     world: WorldConfig = field(default_factory=WorldConfig)
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
     dsac: DSACConfig = field(default_factory=DSACConfig)
@@ -163,7 +165,10 @@ class Trainer:
         self.run_dir = Path(run_dir)
         self.progress = progress
         cfg = config
-        self.agent = DSAC(cfg.dsac, cfg.encoder, seed=cfg.seed)
+        if cfg.device != "cpu" and not torch.cuda.is_available():
+            raise ValueError(f"device {cfg.device!r} was asked for but CUDA is not available")
+        self.device = torch.device(cfg.device)
+        self.agent = DSAC(cfg.dsac, cfg.encoder, seed=cfg.seed, device=self.device)
         self.buffer = ReplayBuffer(cfg.buffer_size, cfg.world.humans, seed=cfg.seed + 1)
         world_options = {
             k: v for k, v in to_dict(cfg.world).items() if k not in ("scenario", "humans")
@@ -173,7 +178,7 @@ class Trainer:
         )
         self.unicycle = cfg.world.kinematics == "unicycle"
         self.rng = np.random.default_rng(cfg.seed + 2)
-        self.generator = torch.Generator().manual_seed(cfg.seed + 3)
+        self.generator = torch.Generator(device=self.device).manual_seed(cfg.seed + 3)
         obs, _ = self.env.reset(seed=TRAIN_SEED_BASE)
         self.obs = obs
         e = cfg.num_envs
@@ -197,8 +202,9 @@ class Trainer:
     def _act(self, feats) -> np.ndarray:
         if self.env_steps < self.config.random_steps:
             return self.rng.integers(0, self.config.dsac.n_actions, size=self.config.num_envs)
-        actions, _ = self.agent.act(*_tensors(feats), generator=self.generator)
-        return actions.numpy()
+        inputs = [t.to(self.device) for t in _tensors(feats)]
+        actions, _ = self.agent.act(*inputs, generator=self.generator)
+        return actions.cpu().numpy()
 
     def _step(self) -> None:
         cfg = self.config
@@ -250,7 +256,8 @@ class Trainer:
             # fractional update-to-data ratios carry their remainder to the next step
             self._update_credit += cfg.num_envs * cfg.dsac.updates_per_step
             while self._update_credit >= 1.0:
-                self._last_stats = self.agent.update(self.buffer.sample(cfg.dsac.batch_size))
+                batch = self.buffer.sample(cfg.dsac.batch_size, self.device)
+                self._last_stats = self.agent.update(batch)
                 self._update_credit -= 1.0
 
     # -------------------------------------------------------------- validation / logs
