@@ -399,7 +399,8 @@ class Trainer:
     def restore(self, path: Path) -> None:
         state = read_checkpoint(path)
         # Only the episode budget may change on resume.
-        saved = {**state["config"], "episodes": self.config.episodes}
+        # Normalised through TrainConfig, so options added since the checkpoint take defaults.
+        saved = {**config_from_dict(state["config"]).to_dict(), "episodes": self.config.episodes}
         current = self.config.to_dict()
         if saved != current:
             changed = sorted(k for k in saved if saved[k] != current.get(k))
