@@ -89,6 +89,7 @@ def test_render_png_and_gif(tmp_path):
         (["eval", "--option", "warp=1"], "unknown option(s) ['warp']"),
         (["eval", "--episodes", "0"], "--episodes must be >= 1"),
         (["eval", "--batch-size", "0"], "--batch-size must be >= 1"),
+        (["eval", "--option", "kinematics=unicycle"], "drives holonomic robots"),
         (["render", "--case", "-1", "--out", "x.png"], "--case must be >= 0"),
         (["eval", "--model", "no-such-model"], "no model found"),
         (["render", "--case", "0", "--out", "x.bmp"], ".bmp"),

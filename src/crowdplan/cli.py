@@ -30,15 +30,16 @@ def _add_policy_args(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _world_config(args: argparse.Namespace, base=None):
-    from crowdplan.config import WorldConfig
-    from crowdplan.policies import parse_options
+def _world_config(args: argparse.Namespace, policy, base):
+    """The model's (or default) world with the command line's scenario, humans and options."""
+    from crowdplan.policies import check_compatible, parse_options
 
-    base = base or WorldConfig()
     changes = {"scenario": args.scenario, **parse_options(args.option)}
     if args.humans is not None:
         changes["humans"] = args.humans
-    return base.replace(**changes)
+    config = base.replace(**changes)
+    check_compatible(policy, config)
+    return config
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -46,7 +47,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from crowdplan.policies import load_policy, run_metadata
 
     policy, base = load_policy(args.policy, args.model)
-    config = _world_config(args, base)
+    config = _world_config(args, policy, base)
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     if args.batch_size < 1:
@@ -79,7 +80,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     from crowdplan.sim.render import save_render
 
     policy, base = load_policy(args.policy, args.model)
-    config = _world_config(args, base)
+    config = _world_config(args, policy, base)
     if args.case < 0:
         raise ValueError(f"--case must be >= 0, got {args.case}")
     seed = (

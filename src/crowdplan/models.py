@@ -31,6 +31,7 @@ class DSACPolicy:
         self.world = world
         self.name = name
         self.metadata = metadata or {}
+        self.kinematics = world.kinematics
         self.unicycle = world.kinematics == "unicycle"
 
     @torch.no_grad()

@@ -41,6 +41,16 @@ def load_policy(policy: str | None, model: str | None) -> tuple[Policy, WorldCon
     )
 
 
+def check_compatible(policy: Policy, config: WorldConfig) -> None:
+    """Refuse worlds a policy cannot drive (e.g. ORCA's velocity commands on a unicycle)."""
+    needs = getattr(policy, "kinematics", None)
+    if needs is not None and needs != config.kinematics:
+        raise ValueError(
+            f"policy {policy.name!r} drives {needs} robots but the world is {config.kinematics}; "
+            f"drop the kinematics option or use a model trained for {config.kinematics} robots"
+        )
+
+
 def git_hash() -> str:
     """Commit of the source tree, with '+dirty' when it has uncommitted changes."""
     root = Path(__file__).resolve().parent
