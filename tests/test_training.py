@@ -98,6 +98,10 @@ def test_shipped_presets_load():
     for name in ("raw", "rg", "aw", "sa", "lsa"):
         config = load_config(f"configs/{name}_dsac.yaml")
         assert config.encoder.name == name and config.world.humans == 5
+        assert config.dsac.target_entropy_scale == 0.98  # the paper's setting
+    for name in ("rg", "aw", "sa", "lsa"):
+        config = load_config(f"configs/{name}_dsac_ent05.yaml")
+        assert config.encoder.name == name and config.dsac.target_entropy_scale == 0.5
 
 
 def test_update_to_data_ratio(tmp_path):
