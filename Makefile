@@ -16,8 +16,8 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 demo: setup
-	$(BIN)/crowdplan eval --policy orca --episodes 500 --out $(DEMO)/orca-circle
-	$(BIN)/crowdplan render --policy orca --case 0 --out $(DEMO)/orca-case0.gif
+	$(BIN)/crowdplan eval --model lsa-dsac --episodes 500 --out $(DEMO)/lsa-dsac-circle
+	$(BIN)/crowdplan render --model lsa-dsac --case 0 --out $(DEMO)/lsa-dsac-case0.gif
 
 test: setup
 	$(BIN)/ruff check src tests benchmarks

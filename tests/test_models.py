@@ -59,3 +59,8 @@ def test_model_for_another_action_space_is_refused(tmp_path):
     torch.save(payload, tmp_path / "m.pt")
     with pytest.raises(ValueError, match="trained for 17 actions"):
         load_model_policy(str(tmp_path / "m.pt"))
+
+
+def test_shipped_model_loads_by_name():
+    policy, world = load_model_policy("lsa-dsac")
+    assert world.humans == 5 and policy.metadata["encoder"] == "lsa"
