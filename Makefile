@@ -32,13 +32,15 @@ bench: setup
 	$(PY) benchmarks/bench_sim.py
 	$(PY) benchmarks/bench_update.py
 
-# Copy the small artefacts of a training run into results/ and test its best model on 500 cases:
+# Copy the small artefacts of a training run into results/ and test its best model on the 500
+# circle_crossing and the 500 square_crossing (transfer) test cases:
 #   make publish RUN=runs/lsa_dsac-s0
 publish: setup
 	@test -n "$(RUN)" || (echo "usage: make publish RUN=runs/<run>"; exit 2)
 	mkdir -p results/train/$(notdir $(RUN))
 	cp $(addprefix $(RUN)/,config.yaml meta.json episodes.csv validation.csv updates.csv curves.png best_model.pt) results/train/$(notdir $(RUN))/
 	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --out results/train/$(notdir $(RUN))/test
+	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --scenario square_crossing --out results/train/$(notdir $(RUN))/test-square
 
 results-orca: setup
 	$(BIN)/crowdplan eval --policy orca --scenario circle_crossing --episodes 500 --out results/orca/circle_crossing
