@@ -246,6 +246,7 @@ class Trainer:
                     "return": float(self.ep_return[env]),
                     "discounted_return": float(self.ep_discounted[env]),
                     "env_steps": self.env_steps,
+                    "train_seconds": round(self.train_seconds, 3),  # up to the previous step
                 }
             )
         self.ep_return[done] = 0.0
@@ -520,8 +521,11 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
     if not rows:
         return
 
+    # columns in first-seen order: rows logged before a column existed leave it empty
+    fieldnames = list(dict.fromkeys(key for row in rows for key in row))
+
     def write(f):
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer = csv.DictWriter(f, fieldnames=fieldnames)
         writer.writeheader()
         writer.writerows(rows)
 
