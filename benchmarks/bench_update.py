@@ -74,18 +74,24 @@ def count_update_flops(agent: DSAC, batch: dict[str, torch.Tensor]) -> int:
 
 
 def matmul_gflops(
-    n: int = 1024, iters: int = 20, clock: Callable[[], float] = time.perf_counter
+    n: int = 1024,
+    iters: int = 20,
+    clock: Callable[[], float] = time.perf_counter,
+    device: str = "cpu",
 ) -> float:
     """Achieved GFLOP/s of an ``n x n @ n x n`` float32 matmul (best of three rounds)."""
-    a, b = torch.randn(n, n), torch.randn(n, n)
-    out = torch.empty(n, n)
+    a, b = torch.randn(n, n, device=device), torch.randn(n, n, device=device)
+    out = torch.empty(n, n, device=device)
+    sync = torch.cuda.synchronize if device != "cpu" else lambda: None
     for _ in range(3):
         torch.mm(a, b, out=out)
     best = float("inf")
     for _ in range(3):
+        sync()
         start = clock()
         for _ in range(iters):
             torch.mm(a, b, out=out)
+        sync()
         best = min(best, (clock() - start) / iters)
     return 2 * n**3 / best / 1e9
 
@@ -105,22 +111,37 @@ def main() -> None:
         help="time with the thread's CPU clock instead of the wall clock (robust to other "
         "processes sharing the cores; single-threaded runs only)",
     )
+    parser.add_argument(
+        "--device",
+        default="cpu",
+        help="cpu or a CUDA device; on CUDA the ceiling is a 8192^3 float32 matmul (TF32 off)",
+    )
     args = parser.parse_args()
+    if args.cpu_clock and args.device != "cpu":
+        parser.error("--cpu-clock measures host threads; it cannot time a CUDA device")
 
     torch.set_num_threads(args.threads)
     encoder = EncoderConfig(name=args.encoder, max_humans=args.humans)
-    agent = DSAC(DSACConfig(batch_size=args.batch), encoder)
-    batch = make_batch(args.batch, args.humans)
+    agent = DSAC(DSACConfig(batch_size=args.batch), encoder, device=args.device)
+    batch = {k: v.to(args.device) for k, v in make_batch(args.batch, args.humans).items()}
 
     clock = time.thread_time if args.cpu_clock else time.perf_counter
     seconds = time_update(agent, batch, args.warmup, args.iters, args.rounds, clock)
-    gflop = count_update_flops(agent, batch) / 1e9
+    # counted on a CPU copy: fused CUDA kernels (cuDNN's LSTM) are invisible to the counter
+    cpu_agent = DSAC(DSACConfig(batch_size=args.batch), encoder)
+    gflop = count_update_flops(cpu_agent, make_batch(args.batch, args.humans)) / 1e9
     achieved = gflop / seconds
-    peak = matmul_gflops(clock=clock)
+    # (every update ends in a host sync: its statistics are read back with .tolist())
+    peak = (
+        matmul_gflops(clock=clock)
+        if args.device == "cpu"
+        else matmul_gflops(n=8192, iters=10, device=args.device)
+    )
 
     print(
         f"torch {torch.__version__}, {platform.processor() or platform.machine()}, "
-        f"threads={args.threads}, clock={'cpu' if args.cpu_clock else 'wall'}, "
+        f"device={args.device}, threads={args.threads}, "
+        f"clock={'cpu' if args.cpu_clock else 'wall'}, "
         f"encoder={args.encoder}, batch={args.batch}, "
         f"humans={args.humans}, best of {args.rounds} x {args.iters} updates after "
         f"{args.warmup} warm-up\n"

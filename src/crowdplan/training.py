@@ -15,11 +15,14 @@ A run folder holds:
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import io
 import math
+import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -430,29 +433,20 @@ class Trainer:
         self._update_credit = state.get("update_credit", 0.0)
 
     # -------------------------------------------------------------- main loop
-    def run(self) -> None:
+    def run(self) -> bool:
+        """Train to the episode budget; returns False when SIGTERM / SIGINT stopped it early.
+
+        A stop request finishes the current environment step, writes the checkpoint and the logs
+        and returns, so that ``--resume`` continues from exactly there.
+        """
         cfg = self.config
         torch.set_num_threads(cfg.torch_threads)
-        while len(self.episodes) < cfg.episodes:
-            start = time.perf_counter()
-            self._step()
-            done = len(self.episodes)
-            if done >= self._next_log:
-                self._log()
-                self._next_log += cfg.log_interval
-            if done >= self._next_val:
-                row = self.validate()
-                self._print(
-                    f"validation at episode {done}: success {row['success_rate']:.2f} "
-                    f"reward {row['mean_reward']:+.3f}"
-                )
-                self._next_val += cfg.val_interval
-            # wall clock of rollouts, updates, logging and validation; checkpoints excluded so
-            # that the time saved in a checkpoint is complete
-            self.train_seconds += time.perf_counter() - start
-            if done >= self._next_ckpt:
-                self.checkpoint()
-                self._next_ckpt += cfg.checkpoint_interval
+        with _stop_requests() as stop:
+            while len(self.episodes) < cfg.episodes:
+                if stop.is_set():
+                    self.checkpoint()
+                    return False
+                self._train_step()
         if not self.validations or self.validations[-1]["episode"] != len(self.episodes):
             self.validate()  # the converged reward: validation at the end of training
         self.save_model(self.run_dir / "final_model.pt", {})
@@ -461,6 +455,30 @@ class Trainer:
             self._tb.close()
         if self.progress and sys.stderr.isatty():
             print(file=sys.stderr)
+        return True
+
+    def _train_step(self) -> None:
+        """One vector-env step with its updates, then whatever logging / validation is due."""
+        cfg = self.config
+        start = time.perf_counter()
+        self._step()
+        done = len(self.episodes)
+        if done >= self._next_log:
+            self._log()
+            self._next_log += cfg.log_interval
+        if done >= self._next_val:
+            row = self.validate()
+            self._print(
+                f"validation at episode {done}: success {row['success_rate']:.2f} "
+                f"reward {row['mean_reward']:+.3f}"
+            )
+            self._next_val += cfg.val_interval
+        # wall clock of rollouts, updates, logging and validation; checkpoints excluded so
+        # that the time saved in a checkpoint is complete
+        self.train_seconds += time.perf_counter() - start
+        if done >= self._next_ckpt:
+            self.checkpoint()
+            self._next_ckpt += cfg.checkpoint_interval
 
     def test(self) -> dict:
         """Evaluate the best-validation model on the test cases; writes run_dir/test/."""
@@ -471,6 +489,23 @@ class Trainer:
         meta = run_metadata(policy, world, seeds, "test")
         evaluation.write_results(self.run_dir / "test", summary, records, meta)
         return summary
+
+
+@contextlib.contextmanager
+def _stop_requests():
+    """While active, SIGTERM and SIGINT set the yielded event instead of killing the process."""
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop  # signal handlers can only be installed from the main thread
+        return
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
+    for sig in previous:
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        yield stop
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _expand(done: np.ndarray, value: np.ndarray) -> np.ndarray:
@@ -565,7 +600,12 @@ def train_from_cli(args) -> int:
     atomic_write(
         run_dir / "config.yaml", lambda f: yaml.safe_dump(config.to_dict(), f, sort_keys=False)
     )
-    trainer.run()
+    if not trainer.run():
+        print(
+            f"stopped at episode {len(trainer.episodes)}; checkpoint written. "
+            f"Continue with: crowdplan train --out {run_dir} --resume"
+        )
+        return 130
     summary = trainer.test() if config.test_episodes else None
     trainer.write_logs()
     if summary:
