@@ -1,6 +1,8 @@
 """Training pipeline: determinism, exact resume, config and checkpoint errors."""
 
 import dataclasses
+import os
+import signal
 
 import pytest
 import torch
@@ -57,6 +59,28 @@ def test_resume_after_stop_continues_exactly(tmp_path):
     resumed.run()
     assert torch.equal(_weights(straight), _weights(resumed))
     assert [e["seed"] for e in straight.episodes] == [e["seed"] for e in resumed.episodes]
+
+
+def test_sigterm_checkpoints_mid_episode_and_resume_is_exact(tmp_path, monkeypatch):
+    straight = _train(tmp_path, "straight", episodes=6)
+    config = dataclasses.replace(config_from_dict(TINY), episodes=6)
+    killed = Trainer(config, tmp_path / "killed", progress=False)
+    step, calls = killed._train_step, []
+
+    def step_then_signal():
+        step()
+        calls.append(1)
+        if len(calls) == 23:  # mid-episode: the time limit is 16 steps
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(killed, "_train_step", step_then_signal)
+    assert killed.run() is False
+    assert len(calls) == 23 and killed.env_steps == 23 * config.num_envs
+    resumed = Trainer(config, tmp_path / "killed", progress=False)
+    resumed.restore(tmp_path / "killed" / "checkpoint.pt")
+    assert resumed.run() is True
+    assert torch.equal(_weights(straight), _weights(resumed))
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers restored
 
 
 def test_corrupted_checkpoint_is_reported(tmp_path):

@@ -32,9 +32,23 @@ def _cell(entry: dict, digits: int) -> str:
     return f"{value:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
 
 
+def _model_episode(summary_path: Path, meta: dict) -> str:
+    """'K of T': the evaluated model was saved at training episode K of a run of T episodes
+    (T read from the run's meta.json next to the result folder); '-' for planners."""
+    if "episodes_trained" not in meta:
+        return "-"
+    selected = meta.get("selected_at_episode", meta["episodes_trained"])
+    run_meta = summary_path.parent.parent / "meta.json"
+    if not run_meta.exists():
+        return str(selected)
+    return f"{selected} of {json.loads(run_meta.read_text())['episodes']}"
+
+
 def summary_table(paths: list[Path]) -> str:
     """One markdown row per summary.json: method, scenario, humans, cases, metrics with CIs."""
-    header = ["result", "policy", "scenario", "N", "cases"] + [label for _, label, _ in COLUMNS]
+    header = ["result", "policy", "scenario", "N", "cases", "model at episode"] + [
+        label for _, label, _ in COLUMNS
+    ]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for path in paths:
         data = json.loads(path.read_text())
@@ -46,6 +60,7 @@ def summary_table(paths: list[Path]) -> str:
             world.get("scenario", "?"),
             str(world.get("humans", "?")),
             str(data["episodes"]["value"]),
+            _model_episode(path, meta),
         ] + [_cell(data[key], digits) for key, _, digits in COLUMNS]
         lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines)
