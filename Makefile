@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 BIN := $(VENV)/bin
 DEMO := runs/demo
 
-.PHONY: setup demo test format bench publish results-orca
+.PHONY: setup demo test format bench publish ship results-doc results-orca
 
 setup: $(VENV)/.installed
 
@@ -41,6 +41,16 @@ publish: setup
 	cp $(addprefix $(RUN)/,config.yaml meta.json episodes.csv validation.csv updates.csv curves.png best_model.pt) results/train/$(notdir $(RUN))/
 	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --out results/train/$(notdir $(RUN))/test
 	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --scenario square_crossing --out results/train/$(notdir $(RUN))/test-square
+
+# Make a published run's best-validation model the shipped one: make ship RUN=results/train/<run>
+ship:
+	@test -f "$(RUN)/best_model.pt" || (echo "usage: make ship RUN=results/train/<run>"; exit 2)
+	cp $(RUN)/best_model.pt models/lsa-dsac/model.pt
+	cp $(RUN)/config.yaml models/lsa-dsac/config.yaml
+
+# Regenerate every table of docs/results.md from the committed result folders.
+results-doc: setup
+	$(BIN)/crowdplan report --fill docs/results.md
 
 results-orca: setup
 	$(BIN)/crowdplan eval --policy orca --scenario circle_crossing --episodes 500 --out results/orca/circle_crossing

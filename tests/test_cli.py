@@ -148,3 +148,23 @@ def test_report_from_result_folders(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "| orca | circle_crossing | 5 | 2 |" in out
     assert main(["report", str(tmp_path / "missing")]) == 2
+
+
+def test_report_fills_markdown_blocks(tmp_path, capsys):
+    assert main(["eval", "--episodes", "2", "--out", str(tmp_path / "orca")]) == 0
+    page = tmp_path / "results.md"
+    page.write_text(
+        f"# Results\n\n<!-- crowdplan report {tmp_path / 'orca'} -->\nstale table\n"
+        "<!-- end report -->\n\nprose stays\n"
+    )
+    capsys.readouterr()
+    assert main(["report", "--fill", str(page)]) == 0
+    text = page.read_text()
+    assert "stale table" not in text and "prose stays" in text
+    assert "| orca | circle_crossing | 5 | 2 |" in text
+    before = text
+    assert main(["report", "--fill", str(page)]) == 0
+    assert page.read_text() == before  # regenerating is idempotent
+    (tmp_path / "plain.md").write_text("no blocks\n")
+    assert main(["report", "--fill", str(tmp_path / "plain.md")]) == 2
+    assert "no '<!-- crowdplan report" in capsys.readouterr().err

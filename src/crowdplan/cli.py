@@ -100,8 +100,15 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from crowdplan.analysis.report import report
+    from crowdplan.analysis.report import fill_markdown, report
 
+    if args.fill:
+        if args.folders:
+            raise ValueError("give either result folders or --fill FILE.md, not both")
+        print(f"filled {fill_markdown(args.fill)} report block(s) of {args.fill}")
+        return 0
+    if not args.folders:
+        raise ValueError("give result folders to report on, or --fill FILE.md")
     print(report(args.folders), end="")
     return 0
 
@@ -140,7 +147,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("report", help="markdown tables from result and run folders")
-    p.add_argument("folders", nargs="+", help="folders searched for summary.json and runs")
+    p.add_argument("folders", nargs="*", help="folders searched for summary.json and runs")
+    p.add_argument(
+        "--fill",
+        metavar="FILE.md",
+        help="regenerate the '<!-- crowdplan report DIR ... -->' blocks of a markdown file",
+    )
     p.set_defaults(func=cmd_report)
     return parser
 

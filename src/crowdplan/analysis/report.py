@@ -3,13 +3,25 @@
 ``crowdplan report DIR [DIR ...]`` finds every ``summary.json`` under the given folders and prints
 one row per evaluation; training runs (folders with ``meta.json`` + ``validation.csv``) also get
 their training time and last validation.
+
+``crowdplan report --fill FILE.md`` regenerates every block of a markdown page that sits between
+``<!-- crowdplan report DIR [DIR ...] -->`` and ``<!-- end report -->`` from those folders, so that
+the tables of docs/results.md are always the output of the command written above them.
 """
 
 from __future__ import annotations
 
 import csv
 import json
+import re
+import shlex
 from pathlib import Path
+
+from crowdplan.io import atomic_write
+
+_BLOCK = re.compile(
+    r"(<!-- crowdplan report (?P<args>[^>]*?) -->\n)(?P<body>.*?)(<!-- end report -->)", re.S
+)
 
 COLUMNS = [
     ("success_rate", "success", 3),
@@ -123,3 +135,26 @@ def report(folders: list[str]) -> str:
     if runs:
         parts += ["", "### Training runs", "", training_table(runs)]
     return "\n".join(parts) + "\n"
+
+
+def fill_markdown(path: str | Path) -> int:
+    """Regenerate the report blocks of a markdown file in place; returns how many were filled."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"markdown file {path} does not exist")
+    text = path.read_text()
+    count = 0
+
+    def regenerate(match: re.Match) -> str:
+        nonlocal count
+        count += 1
+        folders = shlex.split(match["args"])
+        return f"{match[1]}\n{report(folders)}\n{match[4]}"
+
+    new_text = _BLOCK.sub(regenerate, text)
+    if count == 0:
+        raise ValueError(
+            f"{path} has no '<!-- crowdplan report DIR ... -->' ... '<!-- end report -->' block"
+        )
+    atomic_write(path, lambda f: f.write(new_text))
+    return count
