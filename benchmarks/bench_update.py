@@ -116,9 +116,15 @@ def main() -> None:
         default="cpu",
         help="cpu or a CUDA device; on CUDA the ceiling is a 8192^3 float32 matmul (TF32 off)",
     )
+    parser.add_argument(
+        "--parallel-update",
+        action="store_true",
+        help="also time DSACConfig(parallel_update=True) (critic and policy halves of the update "
+        "on two threads) and print its speed-up over the serial update of the same run",
+    )
     args = parser.parse_args()
-    if args.cpu_clock and args.device != "cpu":
-        parser.error("--cpu-clock measures host threads; it cannot time a CUDA device")
+    if args.cpu_clock and (args.device != "cpu" or args.parallel_update):
+        parser.error("--cpu-clock times one host thread: not with CUDA or --parallel-update")
 
     torch.set_num_threads(args.threads)
     encoder = EncoderConfig(name=args.encoder, max_humans=args.humans)
@@ -152,6 +158,15 @@ def main() -> None:
         f"| {seconds * 1e3:.2f} | {gflop:.3f} | {achieved:.1f} | {peak:.1f} | "
         f"{achieved / peak:.3f} |"
     )
+    if args.parallel_update:
+        config = DSACConfig(batch_size=args.batch, parallel_update=True)
+        parallel_agent = DSAC(config, encoder, device=args.device)
+        timing = time_update(parallel_agent, batch, args.warmup, args.iters, args.rounds, clock)
+        # the serial update again, interleaved, so that both saw the same machine
+        serial = time_update(agent, batch, 0, args.iters, args.rounds, clock)
+        print("\n| serial update ms | parallel update ms | speed-up |")
+        print("|---:|---:|---:|")
+        print(f"| {serial * 1e3:.2f} | {timing * 1e3:.2f} | {serial / timing:.2f}x |")
 
 
 if __name__ == "__main__":

@@ -29,9 +29,28 @@ def test_bench_sim_quick():
 
 def test_bench_update_quick():
     script = SCRIPT.parent / "bench_update.py"
-    args = ["--batch", "16", "--warmup", "1", "--iters", "2", "--rounds", "1"]
+    args = ["--batch", "16", "--warmup", "1", "--iters", "2", "--rounds", "1", "--parallel-update"]
     result = subprocess.run(
         [sys.executable, str(script), *args], capture_output=True, text=True, timeout=120
     )
     assert result.returncode == 0, result.stderr
     assert "| update ms |" in result.stdout and "ratio" in result.stdout
+    assert "| serial update ms | parallel update ms | speed-up |" in result.stdout
+
+
+def test_bench_train_quick(tmp_path):
+    config = tmp_path / "tiny.yaml"
+    config.write_text(
+        "name: tiny\nnum_envs: 2\nrandom_steps: 16\nlearning_starts: 16\n"
+        "world: {humans: 3, time_limit: 4.0}\nencoder: {name: lsa}\ndsac: {batch_size: 16}\n"
+    )
+    script = SCRIPT.parent / "bench_train.py"
+    result = subprocess.run(
+        [sys.executable, str(script), "--config", str(config), "--episodes", "4"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "identical episodes in both runs: yes" in result.stdout
+    assert "| serial | 4 |" in result.stdout and "| two threads | 4 |" in result.stdout

@@ -120,6 +120,31 @@ def test_update_runs_with_every_encoder(encoder, share_encoder):
         assert not encoder_ids & {id(p) for p in actor_group["params"]}
 
 
+@pytest.mark.parametrize("share_encoder", [False, True])
+@pytest.mark.parametrize("encoder", ENCODER_NAMES)
+def test_parallel_update_is_bitwise_identical(encoder, share_encoder):
+    config = EncoderConfig(name=encoder, max_humans=3)
+    serial = DSAC(DSACConfig(share_encoder=share_encoder), config, seed=5)
+    parallel = DSAC(DSACConfig(share_encoder=share_encoder, parallel_update=True), config, seed=5)
+    for step in range(4):
+        batch = small_batch(seed=step)
+        assert serial.update(batch) == parallel.update(batch)
+    for net in ("actor", "critic", "critic_target"):
+        for p, q in zip(
+            getattr(serial, net).parameters(), getattr(parallel, net).parameters(), strict=True
+        ):
+            assert torch.equal(p, q)
+
+
+def test_parallel_update_reports_errors_instead_of_hanging():
+    agent = DSAC(DSACConfig(parallel_update=True), EncoderConfig(name="lsa", max_humans=3))
+    batch = small_batch()
+    batch["next_humans"] = batch["next_humans"][:, :, :5]  # wrong feature width
+    with pytest.raises((RuntimeError, IndexError)):
+        agent.update(batch)
+    agent.update(small_batch())  # the worker thread is still usable
+
+
 def test_target_critic_is_a_polyak_average():
     cfg = DSACConfig(tau=0.005)
     agent = DSAC(cfg, EncoderConfig(name="aw"))

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import copy
 import math
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,6 +44,8 @@ class DSACConfig:
         autotune_alpha: learn log(alpha) towards the target entropy; False keeps ``init_alpha``.
         n_actions: size of the discrete action set (SPEC: 81).
         updates_per_step: gradient updates per environment step (UTD ratio; used by the loop).
+        parallel_update: run the critic half and the policy half of every update on two threads
+            (for two free cores); the results are bitwise the same as on one thread.
         share_encoder: the policy reuses the critic's encoder (relation network / LSTM) instead of
             having its own; the shared encoder is then trained by the critic loss only and the
             policy sees its features detached (as in SAC-AE / DrQ). Default: separate encoders.
@@ -59,6 +62,7 @@ class DSACConfig:
     autotune_alpha: bool = True
     n_actions: int = 81
     updates_per_step: float = 1.0
+    parallel_update: bool = False
     share_encoder: bool = False
     q_hidden: tuple[int, ...] = (128, 128)
     policy_hidden: tuple[int, ...] = (128, 128)
@@ -150,6 +154,7 @@ class DSAC:
         )
         self._critic_params = list(self.critic.parameters())
         self._target_params = list(self.critic_target.parameters())
+        self._worker = ThreadPoolExecutor(1) if config.parallel_update else None
         self.n_updates = 0
 
     @property
@@ -186,43 +191,34 @@ class DSAC:
         cfg = self.config
         obs = (batch["robot"], batch["humans"], batch["mask"])
         next_obs = (batch["next_robot"], batch["next_humans"], batch["next_mask"])
-        actions, rewards, dones = batch["action"], batch["reward"], batch["done"]
         alpha = self.log_alpha.detach().exp()
 
-        with torch.no_grad():
-            next_log_pi = F.log_softmax(self.actor(*next_obs)[0], dim=1)
-            next_pi = next_log_pi.exp()
-            qf1_next_target, qf2_next_target = self.critic_target(*next_obs)
-            # soft state value: exact expectation over the actions (a sum, not a mean)
-            min_qf_next_target = (
-                next_pi * (torch.min(qf1_next_target, qf2_next_target) - alpha * next_log_pi)
-            ).sum(dim=1)
-            # dones are terminations only; truncated (timeout) transitions bootstrap
-            next_q_value = rewards + cfg.gamma * (1.0 - dones) * min_qf_next_target
-
-        qf1_values, qf2_values = self.critic(*obs)
-        qf1_a_values = qf1_values.gather(1, actions.unsqueeze(1)).squeeze(1)
-        qf2_a_values = qf2_values.gather(1, actions.unsqueeze(1)).squeeze(1)
-        qf1_loss = F.mse_loss(qf1_a_values, next_q_value)
-        qf2_loss = F.mse_loss(qf2_a_values, next_q_value)
-        qf_loss = qf1_loss + qf2_loss
-
-        # policy loss against the (detached) Q-values of this batch's critic forward
-        log_pi = F.log_softmax(self.actor(*obs)[0], dim=1)
-        action_probs = log_pi.exp()
-        min_qf_values = torch.min(qf1_values, qf2_values).detach()
-        actor_loss = (action_probs * (alpha * log_pi - min_qf_values)).sum(dim=1).mean()
-
-        entropy = -(action_probs.detach() * log_pi.detach()).sum(dim=1)
-        alpha_loss = (self.log_alpha * (entropy - self.target_entropy)).mean()
-
-        # The three losses act on disjoint parameters and every cross term (Q in the policy loss,
-        # alpha in both, the entropy in the temperature loss) is detached, so one backward of
-        # their sum and one Adam step over the three parameter groups equal three separate
-        # optimiser steps -- at a third of the Python/autograd overhead.
-        loss = qf_loss + actor_loss + (alpha_loss if cfg.autotune_alpha else 0.0)
+        # The critic loss and the policy + temperature losses act on disjoint parameters and
+        # every cross term (Q in the policy loss, alpha in both, the entropy in the temperature
+        # loss) is detached, so their two backward passes and one Adam step over the three
+        # parameter groups equal three separate optimiser steps. With ``parallel_update`` the
+        # policy's work (pi(s'), pi(s), its backward) and the critic's (Q'(s'), Q(s), its
+        # backward) run on two threads, exchanging pi(.|s') and min Q(s, .) through futures;
+        # torch releases the GIL inside its kernels, and the results are bitwise the same.
         self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
+        next_policy: Future[tuple[Tensor, Tensor]] = Future()
+        min_qf_values: Future[Tensor] = Future()
+        critic_args = (obs, next_obs, batch["action"], batch["reward"], batch["done"], alpha)
+        if self._worker is None:
+            self._next_policy(next_obs, next_policy)
+            critic_stats = self._critic_step(*critic_args, next_policy, min_qf_values)
+            actor_stats = self._actor_step(obs, alpha, min_qf_values)
+        else:
+            critic_job = self._worker.submit(
+                self._critic_step, *critic_args, next_policy, min_qf_values
+            )
+            try:
+                self._next_policy(next_obs, next_policy)
+                actor_stats = self._actor_step(obs, alpha, min_qf_values)
+            except BaseException:
+                wait([critic_job])  # it fails too (its inputs are failed futures); let it finish
+                raise
+            critic_stats = critic_job.result()
         self.optimizer.step()
 
         with torch.no_grad():
@@ -230,17 +226,10 @@ class DSAC:
             torch._foreach_lerp_(self._target_params, self._critic_params, cfg.tau)
         self.n_updates += 1
 
+        qf1_loss, qf2_loss, qf_loss, qf_mean = critic_stats
+        actor_loss, alpha_loss, entropy = actor_stats
         stats = torch.stack(
-            [
-                qf1_loss.detach(),
-                qf2_loss.detach(),
-                qf_loss.detach(),
-                actor_loss.detach(),
-                alpha_loss.detach(),
-                alpha,
-                entropy.mean(),
-                qf1_a_values.detach().mean(),
-            ]
+            [qf1_loss, qf2_loss, qf_loss, actor_loss, alpha_loss, alpha, entropy, qf_mean]
         ).tolist()
         names = (
             "qf1_loss",
@@ -253,6 +242,69 @@ class DSAC:
             "qf_mean",
         )
         return dict(zip(names, stats, strict=True))
+
+    def _critic_step(
+        self,
+        obs: tuple[Tensor, Tensor, Tensor],
+        next_obs: tuple[Tensor, Tensor, Tensor],
+        actions: Tensor,
+        rewards: Tensor,
+        dones: Tensor,
+        alpha: Tensor,
+        next_policy: Future[tuple[Tensor, Tensor]],
+        min_qf_values: Future[Tensor],
+    ) -> tuple[Tensor, ...]:
+        """Soft target, twin-critic loss and its backward; hands min(Q1, Q2)(s, .) to the policy
+        step through ``min_qf_values`` as soon as the critic's forward pass has it."""
+        try:
+            with torch.no_grad():
+                qf1_next_target, qf2_next_target = self.critic_target(*next_obs)
+            qf1_values, qf2_values = self.critic(*obs)
+            min_qf_values.set_result(torch.min(qf1_values, qf2_values).detach())
+            with torch.no_grad():
+                next_pi, next_log_pi = next_policy.result()
+                # soft state value: exact expectation over the actions (a sum, not a mean)
+                min_qf_next_target = (
+                    next_pi * (torch.min(qf1_next_target, qf2_next_target) - alpha * next_log_pi)
+                ).sum(dim=1)
+                # dones are terminations only; truncated (timeout) transitions bootstrap
+                next_q_value = rewards + self.config.gamma * (1.0 - dones) * min_qf_next_target
+            qf1_a_values = qf1_values.gather(1, actions.unsqueeze(1)).squeeze(1)
+            qf2_a_values = qf2_values.gather(1, actions.unsqueeze(1)).squeeze(1)
+            qf1_loss = F.mse_loss(qf1_a_values, next_q_value)
+            qf2_loss = F.mse_loss(qf2_a_values, next_q_value)
+            qf_loss = qf1_loss + qf2_loss
+            qf_loss.backward()
+        except BaseException as error:
+            if not min_qf_values.done():  # never leave the policy step waiting
+                min_qf_values.set_exception(error)
+            raise
+        return qf1_loss.detach(), qf2_loss.detach(), qf_loss.detach(), qf1_a_values.mean().detach()
+
+    @torch.no_grad()
+    def _next_policy(
+        self, next_obs: tuple[Tensor, Tensor, Tensor], out: Future[tuple[Tensor, Tensor]]
+    ) -> None:
+        """pi(.|s') and log pi(.|s') for the soft target, delivered through ``out``."""
+        try:
+            next_log_pi = F.log_softmax(self.actor(*next_obs)[0], dim=1)
+            out.set_result((next_log_pi.exp(), next_log_pi))
+        except BaseException as error:
+            out.set_exception(error)  # never leave the critic step waiting
+            raise
+
+    def _actor_step(
+        self, obs: tuple[Tensor, Tensor, Tensor], alpha: Tensor, min_qf_values: Future[Tensor]
+    ) -> tuple[Tensor, ...]:
+        """Policy loss against this batch's (detached) critic values, temperature loss, backward."""
+        log_pi = F.log_softmax(self.actor(*obs)[0], dim=1)
+        action_probs = log_pi.exp()
+        actor_loss = (action_probs * (alpha * log_pi - min_qf_values.result())).sum(dim=1).mean()
+
+        entropy = -(action_probs.detach() * log_pi.detach()).sum(dim=1)
+        alpha_loss = (self.log_alpha * (entropy - self.target_entropy)).mean()
+        (actor_loss + (alpha_loss if self.config.autotune_alpha else 0.0)).backward()
+        return actor_loss.detach(), alpha_loss.detach(), entropy.mean()
 
     def state_dict(self) -> dict[str, Any]:
         """Everything needed to resume: networks, target, temperature and optimiser states."""

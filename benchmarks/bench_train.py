@@ -1,0 +1,86 @@
+"""Training wall clock with the serial and the two-thread DSAC update, measured in the same run.
+
+    python benchmarks/bench_train.py [--config configs/lsa_dsac_ent05.yaml] [--episodes 40]
+
+Trains the same config and seed twice, once with ``dsac.parallel_update`` off and once on, and
+checks that both runs produced identical episodes (the two-thread update is bitwise the same, so
+the episode lengths, and with them the work, are identical). Prints a markdown table of training
+seconds, hours per 10k episodes at this stage of training, and the speed-up. Early episodes are
+long (random actions, time-outs), so hours per 10k episodes here are an upper bound for a whole
+run; the speed-up is what this measures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from crowdplan.training import Trainer, load_config
+
+
+def train(config, run_dir: Path) -> Trainer:
+    trainer = Trainer(config, run_dir, progress=False)
+    trainer.run()
+    return trainer
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", default="configs/lsa_dsac_ent05.yaml")
+    parser.add_argument("--episodes", type=int, default=40)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+
+    base = load_config(args.config)
+    base = dataclasses.replace(
+        base,
+        seed=args.seed,
+        episodes=args.episodes,
+        val_interval=10**9,
+        checkpoint_interval=10**9,
+        log_interval=10**9,
+        test_episodes=0,
+    )
+    torch.set_num_threads(base.torch_threads)
+    rows, episodes = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        # one-off Numba compilation of the world kernels, outside the timed runs
+        warm = Trainer(base, Path(tmp) / "warm", progress=False)
+        warm.env.step(np.zeros(base.num_envs, dtype=np.int64))
+        for parallel in (False, True):
+            config = dataclasses.replace(
+                base, dsac=dataclasses.replace(base.dsac, parallel_update=parallel)
+            )
+            trainer = train(config, Path(tmp) / f"parallel-{parallel}")
+            episodes.append(
+                [{k: v for k, v in e.items() if k != "train_seconds"} for e in trainer.episodes]
+            )
+            rows.append((parallel, trainer))
+    if episodes[0] != episodes[1]:
+        raise SystemExit("serial and parallel runs differ: the two-thread update is not exact")
+
+    serial_seconds = rows[0][1].train_seconds
+    print(
+        f"torch {torch.__version__}, threads={base.torch_threads}, config={args.config}, "
+        f"seed={args.seed}, {args.episodes} episodes from scratch (random actions for the first "
+        f"{base.random_steps} transitions); identical episodes in both runs: yes\n"
+    )
+    print("| update | episodes | env steps | updates | train s | h / 10k episodes | speed-up |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for parallel, trainer in rows:
+        done = len(trainer.episodes)
+        hours = trainer.train_seconds / done * 10000 / 3600
+        print(
+            f"| {'two threads' if parallel else 'serial'} | {done} | {trainer.env_steps} | "
+            f"{trainer.agent.n_updates} | {trainer.train_seconds:.1f} | {hours:.2f} | "
+            f"{serial_seconds / trainer.train_seconds:.2f}x |"
+        )
+
+
+if __name__ == "__main__":
+    main()
