@@ -162,7 +162,7 @@ def main() -> None:
         config = DSACConfig(batch_size=args.batch, parallel_update=True)
         parallel_agent = DSAC(config, encoder, device=args.device)
         timing = time_update(parallel_agent, batch, args.warmup, args.iters, args.rounds, clock)
-        # the serial update again, interleaved, so that both saw the same machine
+        # the serial update timed again right after, so that both saw the same machine state
         serial = time_update(agent, batch, 0, args.iters, args.rounds, clock)
         print("\n| serial update ms | parallel update ms | speed-up |")
         print("|---:|---:|---:|")

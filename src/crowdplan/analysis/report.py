@@ -20,7 +20,7 @@ from pathlib import Path
 from crowdplan.io import atomic_write
 
 _BLOCK = re.compile(
-    r"(<!-- crowdplan report (?P<args>[^>]*?) -->\n)(?P<body>.*?)(<!-- end report -->)", re.S
+    r"(?P<head><!-- crowdplan report (?P<args>[^>]*?) -->\n).*?(?P<end><!-- end report -->)", re.S
 )
 
 COLUMNS = [
@@ -149,7 +149,7 @@ def fill_markdown(path: str | Path) -> int:
         nonlocal count
         count += 1
         folders = shlex.split(match["args"])
-        return f"{match[1]}\n{report(folders)}\n{match[4]}"
+        return f"{match['head']}\n{report(folders)}\n{match['end']}"
 
     new_text = _BLOCK.sub(regenerate, text)
     if count == 0:

@@ -174,7 +174,7 @@ class Encoder(nn.Module):
     def forward(
         self, robot: Tensor, humans: Tensor, mask: Tensor
     ) -> tuple[Tensor, Tensor | None]:  # pragma: no cover - interface
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} must implement forward()")
 
 
 class RawEncoder(Encoder):
