@@ -61,6 +61,19 @@ def test_resume_after_stop_continues_exactly(tmp_path):
     assert [e["seed"] for e in straight.episodes] == [e["seed"] for e in resumed.episodes]
 
 
+def test_resume_with_another_validation_interval_trains_identically(tmp_path):
+    straight = _train(tmp_path, "straight", episodes=8)
+    first = _train(tmp_path, "resumed", episodes=3)
+    config = dataclasses.replace(config_from_dict(TINY), episodes=8, val_interval=3)
+    resumed = Trainer(config, tmp_path / "resumed", False)
+    resumed.restore(tmp_path / "resumed" / "checkpoint.pt")
+    resumed.run()
+    assert torch.equal(_weights(straight), _weights(resumed))  # validation never steers training
+    # the first leg validated where it ended; then every 3 episodes from there on
+    validated = [row["episode"] for row in resumed.validations]
+    assert validated[0] == len(first.episodes) and validated[1:] == [6, 8]
+
+
 def test_sigterm_checkpoints_mid_episode_and_resume_is_exact(tmp_path, monkeypatch):
     straight = _train(tmp_path, "straight", episodes=6)
     config = dataclasses.replace(config_from_dict(TINY), episodes=6)

@@ -141,6 +141,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--humans", type=int, default=None)
     p.add_argument("--episodes", type=int, default=None)
+    p.add_argument(
+        "--val-interval",
+        type=int,
+        default=None,
+        help="episodes between validations (may change on --resume)",
+    )
     p.add_argument("--out", default=None, help="run folder (default runs/<name>-s<seed>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--no-progress", action="store_true", help="plain log lines, no progress bar")

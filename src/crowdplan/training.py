@@ -402,9 +402,11 @@ class Trainer:
 
     def restore(self, path: Path) -> None:
         state = read_checkpoint(path)
-        # Only the episode budget may change on resume.
+        # Only the episode budget and the validation interval may change on resume: neither
+        # touches the training trajectory (validation runs its own worlds, greedy, no RNG).
         # Normalised through TrainConfig, so options added since the checkpoint take defaults.
-        saved = {**config_from_dict(state["config"]).to_dict(), "episodes": self.config.episodes}
+        resumable = {k: getattr(self.config, k) for k in ("episodes", "val_interval")}
+        saved = {**config_from_dict(state["config"]).to_dict(), **resumable}
         current = self.config.to_dict()
         if saved != current:
             changed = sorted(k for k in saved if saved[k] != current.get(k))
@@ -429,6 +431,10 @@ class Trainer:
             c["next_ckpt"],
         )
         self.episodes, self.validations, self.update_stats = state["logs"]
+        if state["config"].get("val_interval") != self.config.val_interval:
+            self._next_val = (len(self.episodes) // self.config.val_interval + 1) * (
+                self.config.val_interval
+            )
         self._last_stats = state["last_stats"]
         self._update_credit = state.get("update_credit", 0.0)
 
@@ -575,8 +581,6 @@ def train_from_cli(args) -> int:
             raise ValueError("--resume needs --out pointing at the run folder to continue")
         run_dir = Path(args.out)
         config = load_config(run_dir / "config.yaml")
-        if args.episodes is not None:
-            config = dataclasses.replace(config, episodes=args.episodes)
     else:
         if not args.config:
             raise ValueError("--config is required for a new run (e.g. configs/lsa_dsac.yaml)")
@@ -587,11 +591,11 @@ def train_from_cli(args) -> int:
             config = dataclasses.replace(config, world=config.world.replace(humans=args.humans))
             if config.encoder.name == "raw":
                 config.encoder = dataclasses.replace(config.encoder, max_humans=args.humans)
-        if args.episodes is not None:
-            config = dataclasses.replace(config, episodes=args.episodes)
         run_dir = Path(args.out or f"runs/{config.name}-s{config.seed}")
         if (run_dir / "checkpoint.pt").exists():
             raise ValueError(f"{run_dir} already holds a run; use --resume or another --out")
+    overrides = {"episodes": args.episodes, "val_interval": args.val_interval}
+    config = dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
     trainer = Trainer(config, run_dir, progress=not args.no_progress)
     if args.resume:
         trainer.restore(run_dir / "checkpoint.pt")
