@@ -8,12 +8,20 @@ the episode lengths, and with them the work, are identical). Prints a markdown t
 seconds, hours per 10k episodes at this stage of training, and the speed-up. Early episodes are
 long (random actions, time-outs), so hours per 10k episodes here are an upper bound for a whole
 run; the speed-up is what this measures.
+
+    python benchmarks/bench_train.py --resume-from runs/lsa_dsac_ent05-s0 [--episodes 100]
+
+instead continues a trained run from its checkpoint (in a temporary copy) for ``--episodes`` more
+episodes with the run's own config and the two-thread update, and prints the training time per
+environment step and per 10k episodes at that stage, where the policy reaches the goal and
+episodes are short.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -34,7 +42,13 @@ def main() -> None:
     parser.add_argument("--config", default="configs/lsa_dsac_ent05.yaml")
     parser.add_argument("--episodes", type=int, default=40)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--resume-from", type=Path, help="run folder whose checkpoint to continue (see above)"
+    )
     args = parser.parse_args()
+    if args.resume_from is not None:
+        time_trained_run(args.resume_from, args.episodes)
+        return
 
     base = load_config(args.config)
     base = dataclasses.replace(
@@ -80,6 +94,47 @@ def main() -> None:
             f"{trainer.agent.n_updates} | {trainer.train_seconds:.1f} | {hours:.2f} | "
             f"{serial_seconds / trainer.train_seconds:.2f}x |"
         )
+
+
+def time_trained_run(source: Path, episodes: int) -> None:
+    """Continue ``source``'s checkpoint for ``episodes`` episodes; print the time per step."""
+    if not (source / "checkpoint.pt").is_file():
+        raise SystemExit(f"{source} has no checkpoint.pt; pass a folder made by crowdplan train")
+    # the presets' two-thread update, and no validation inside the timed stretch (both may
+    # change on resume)
+    config = load_config(source / "config.yaml")
+    config = dataclasses.replace(
+        config,
+        val_interval=10**9,
+        dsac=dataclasses.replace(config.dsac, parallel_update=True),
+    )
+    torch.set_num_threads(config.torch_threads)
+    with tempfile.TemporaryDirectory() as tmp:
+        warm = Trainer(config, Path(tmp) / "warm", progress=False)
+        warm.env.step(np.zeros(config.num_envs, dtype=np.int64))  # one-off Numba compilation
+        run_dir = Path(tmp) / "run"
+        run_dir.mkdir()
+        shutil.copy(source / "checkpoint.pt", run_dir)
+        trainer = Trainer(config, run_dir, progress=False)
+        trainer.restore(run_dir / "checkpoint.pt")
+        start_episodes, start_steps = len(trainer.episodes), trainer.env_steps
+        start_seconds = trainer.train_seconds
+        trainer.config = dataclasses.replace(config, episodes=start_episodes + episodes)
+        trainer.run()
+        seconds = trainer.train_seconds - start_seconds
+        done = len(trainer.episodes) - start_episodes
+        steps = trainer.env_steps - start_steps
+    print(
+        f"torch {torch.__version__}, threads={config.torch_threads}, run={source} "
+        f"(continued from episode {start_episodes}), "
+        f"parallel_update={config.dsac.parallel_update}\n"
+    )
+    print("| episodes | env steps per episode | ms per env step | train s | h / 10k episodes |")
+    print("|---:|---:|---:|---:|---:|")
+    print(
+        f"| {done} | {steps / done:.1f} | {seconds / steps * 1e3:.2f} | {seconds:.1f} | "
+        f"{seconds / done * 10000 / 3600:.2f} |"
+    )
 
 
 if __name__ == "__main__":

@@ -73,6 +73,35 @@ def count_update_flops(agent: DSAC, batch: dict[str, torch.Tensor]) -> int:
     return c.get_total_flops()
 
 
+# (category, predicate on a profiler event name): the first match wins
+OP_CATEGORIES: list[tuple[str, Callable[[str], bool]]] = [
+    ("LSTM (oneDNN kernels)", lambda name: "rnn" in name or "lstm" in name),
+    ("matmul (mm, addmm, bmm)", lambda name: name in ("aten::mm", "aten::addmm", "aten::bmm")),
+    (
+        "optimiser (Adam, target Polyak)",
+        lambda name: "adam" in name.lower() or name.startswith(("Optimizer.", "aten::_foreach")),
+    ),
+    ("everything else (elementwise, copies, views, ...)", lambda name: True),
+]
+
+
+def profile_update(agent: DSAC, batch: dict[str, torch.Tensor], iters: int) -> list[list]:
+    """Share of the update's profiled CPU time per op category (self time, summed over ops)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    for _ in range(10):
+        agent.update(batch)
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(iters):
+            agent.update(batch)
+    totals = {name: 0.0 for name, _ in OP_CATEGORIES}
+    for event in prof.key_averages():
+        category = next(name for name, matches in OP_CATEGORIES if matches(event.key))
+        totals[category] += event.self_cpu_time_total
+    whole = sum(totals.values())
+    return [[name, us / iters / 1e3, us / whole] for name, us in totals.items()]
+
+
 def matmul_gflops(
     n: int = 1024,
     iters: int = 20,
@@ -122,6 +151,12 @@ def main() -> None:
         help="also time DSACConfig(parallel_update=True) (critic and policy halves of the update "
         "on two threads) and print its speed-up over the serial update of the same run",
     )
+    parser.add_argument(
+        "--profile",
+        action="store_true",
+        help="also print where the serial update's CPU time goes, by op category "
+        "(torch.profiler self time; the profiler's own overhead inflates the total)",
+    )
     args = parser.parse_args()
     if args.cpu_clock and (args.device != "cpu" or args.parallel_update):
         parser.error("--cpu-clock times one host thread: not with CUDA or --parallel-update")
@@ -167,6 +202,11 @@ def main() -> None:
         print("\n| serial update ms | parallel update ms | speed-up |")
         print("|---:|---:|---:|")
         print(f"| {serial * 1e3:.2f} | {timing * 1e3:.2f} | {serial / timing:.2f}x |")
+    if args.profile:
+        print("\n| op category (serial update, profiled) | ms per update | share |")
+        print("|---|---:|---:|")
+        for name, ms, share in profile_update(agent, batch, args.iters):
+            print(f"| {name} | {ms:.2f} | {share:.1%} |")
 
 
 if __name__ == "__main__":

@@ -29,13 +29,20 @@ def test_bench_sim_quick():
 
 def test_bench_update_quick():
     script = SCRIPT.parent / "bench_update.py"
-    args = ["--batch", "16", "--warmup", "1", "--iters", "2", "--rounds", "1", "--parallel-update"]
+    args = ["--batch", "16", "--warmup", "1", "--iters", "2", "--rounds", "1"]
+    args += ["--parallel-update", "--profile"]
     result = subprocess.run(
         [sys.executable, str(script), *args], capture_output=True, text=True, timeout=120
     )
     assert result.returncode == 0, result.stderr
     assert "| update ms |" in result.stdout and "ratio" in result.stdout
     assert "| serial update ms | parallel update ms | speed-up |" in result.stdout
+    shares = [
+        float(line.rsplit("|", 2)[1].strip().rstrip("%"))
+        for line in result.stdout.splitlines()
+        if line.startswith(("| LSTM", "| matmul", "| optimiser", "| everything else"))
+    ]
+    assert len(shares) == 4 and abs(sum(shares) - 100.0) < 0.5
 
 
 def test_bench_train_quick(tmp_path):
@@ -54,3 +61,26 @@ def test_bench_train_quick(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "identical episodes in both runs: yes" in result.stdout
     assert "| serial | 4 |" in result.stdout and "| two threads | 4 |" in result.stdout
+
+
+def test_bench_train_resume_from_a_run(tmp_path):
+    config = tmp_path / "tiny.yaml"
+    config.write_text(
+        "name: tiny\nepisodes: 2\nnum_envs: 2\nrandom_steps: 16\nlearning_starts: 16\n"
+        "test_episodes: 0\nval_episodes: 2\n"
+        "world: {humans: 3, time_limit: 4.0}\nencoder: {name: lsa}\ndsac: {batch_size: 16}\n"
+    )
+    run = tmp_path / "run"
+    train = ["-m", "crowdplan.cli", "train", "--config", str(config), "--out", str(run)]
+    subprocess.run([sys.executable, *train, "--no-progress"], check=True, timeout=300)
+    script = SCRIPT.parent / "bench_train.py"
+    result = subprocess.run(
+        [sys.executable, str(script), "--resume-from", str(run), "--episodes", "2"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "continued from episode 2" in result.stdout
+    row = result.stdout.strip().splitlines()[-1]
+    assert row.startswith("| 2 |") and float(row.split("|")[-2]) > 0  # h / 10k episodes

@@ -61,10 +61,11 @@ def test_resume_after_stop_continues_exactly(tmp_path):
     assert [e["seed"] for e in straight.episodes] == [e["seed"] for e in resumed.episodes]
 
 
-def test_resume_with_another_validation_interval_trains_identically(tmp_path):
+def test_resume_with_another_validation_interval_and_update_threads_trains_identically(tmp_path):
     straight = _train(tmp_path, "straight", episodes=8)
     first = _train(tmp_path, "resumed", episodes=3)
     config = dataclasses.replace(config_from_dict(TINY), episodes=8, val_interval=3)
+    config.dsac = dataclasses.replace(config.dsac, parallel_update=True)
     resumed = Trainer(config, tmp_path / "resumed", False)
     resumed.restore(tmp_path / "resumed" / "checkpoint.pt")
     resumed.run()

@@ -402,12 +402,14 @@ class Trainer:
 
     def restore(self, path: Path) -> None:
         state = read_checkpoint(path)
-        # Only the episode budget and the validation interval may change on resume: neither
-        # touches the training trajectory (validation runs its own worlds, greedy, no RNG).
+        # Only the episode budget, the validation interval and the two-thread update may change
+        # on resume: none of them touches the training trajectory (validation runs its own
+        # worlds, greedy, no RNG; the two-thread update is bitwise the serial one).
         # Normalised through TrainConfig, so options added since the checkpoint take defaults.
-        resumable = {k: getattr(self.config, k) for k in ("episodes", "val_interval")}
-        saved = {**config_from_dict(state["config"]).to_dict(), **resumable}
+        saved = config_from_dict(state["config"]).to_dict()
         current = self.config.to_dict()
+        saved.update(episodes=current["episodes"], val_interval=current["val_interval"])
+        saved["dsac"]["parallel_update"] = current["dsac"]["parallel_update"]
         if saved != current:
             changed = sorted(k for k in saved if saved[k] != current.get(k))
             raise ValueError(
