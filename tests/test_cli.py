@@ -94,6 +94,8 @@ def test_render_png_and_gif(tmp_path):
         (["eval", "--model", "no-such-model"], "no model found"),
         (["render", "--case", "0", "--out", "x.bmp"], ".bmp"),
         (["train", "--config", "missing.yaml"], "does not exist"),
+        (["train", "--config", "configs/lsa_dsac.yaml", "--val-interval", "0"], "val_interval"),
+        (["train", "--config", "configs/lsa_dsac.yaml", "--episodes", "-1"], "episodes must be"),
     ],
 )
 def test_bad_input_is_explained(argv, fragment, capsys):
