@@ -144,6 +144,10 @@ def test_shipped_presets_load():
     for name in ("rg", "aw", "sa", "lsa"):
         config = load_config(f"configs/{name}_dsac_ent05.yaml")
         assert config.encoder.name == name and config.dsac.target_entropy_scale == 0.5
+    # the discount read as 0.95 per second of travel: 0.95 ** (dt * v_pref) per step
+    config = load_config("configs/lsa_dsac_ent05_gsec.yaml")
+    per_second = 0.95 ** (config.world.dt * config.world.robot_v_pref)
+    assert config.dsac.gamma == pytest.approx(per_second, abs=1e-9)
 
 
 def test_update_to_data_ratio(tmp_path):
