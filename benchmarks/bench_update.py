@@ -85,8 +85,10 @@ OP_CATEGORIES: list[tuple[str, Callable[[str], bool]]] = [
 ]
 
 
-def profile_update(agent: DSAC, batch: dict[str, torch.Tensor], iters: int) -> list[list]:
-    """Share of the update's profiled CPU time per op category (self time, summed over ops)."""
+def profile_update(
+    agent: DSAC, batch: dict[str, torch.Tensor], iters: int
+) -> list[tuple[str, float, float]]:
+    """(category, ms per update, share) of the update's profiled CPU time (op self times)."""
     from torch.profiler import ProfilerActivity, profile
 
     for _ in range(10):
@@ -99,7 +101,7 @@ def profile_update(agent: DSAC, batch: dict[str, torch.Tensor], iters: int) -> l
         category = next(name for name, matches in OP_CATEGORIES if matches(event.key))
         totals[category] += event.self_cpu_time_total
     whole = sum(totals.values())
-    return [[name, us / iters / 1e3, us / whole] for name, us in totals.items()]
+    return [(name, us / iters / 1e3, us / whole) for name, us in totals.items()]
 
 
 def matmul_gflops(
