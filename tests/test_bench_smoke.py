@@ -1,4 +1,4 @@
-"""Smoke run of the simulation benchmark (no timing assertions)."""
+"""Smoke runs of the benchmark scripts (no timing assertions)."""
 
 from __future__ import annotations
 
@@ -7,6 +7,23 @@ import sys
 from pathlib import Path
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_sim.py"
+
+TINY_TRAIN_YAML = (
+    "name: tiny\nnum_envs: 2\nrandom_steps: 16\nlearning_starts: 16\n"
+    "world: {humans: 3, time_limit: 4.0}\nencoder: {name: lsa}\ndsac: {batch_size: 16}\n"
+)
+
+
+def _run_bench(name: str, *args: str) -> subprocess.CompletedProcess:
+    """Run benchmarks/<name> with ``args`` and check that it succeeded."""
+    result = subprocess.run(
+        [sys.executable, str(SCRIPT.parent / name), *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    return result
 
 
 def test_bench_sim_quick():
@@ -28,13 +45,8 @@ def test_bench_sim_quick():
 
 
 def test_bench_update_quick():
-    script = SCRIPT.parent / "bench_update.py"
     args = ["--batch", "16", "--warmup", "1", "--iters", "2", "--rounds", "1"]
-    args += ["--parallel-update", "--profile"]
-    result = subprocess.run(
-        [sys.executable, str(script), *args], capture_output=True, text=True, timeout=120
-    )
-    assert result.returncode == 0, result.stderr
+    result = _run_bench("bench_update.py", *args, "--parallel-update", "--profile")
     assert "| update ms |" in result.stdout and "ratio" in result.stdout
     assert "| serial update ms | parallel update ms | speed-up |" in result.stdout
     shares = [
@@ -47,40 +59,19 @@ def test_bench_update_quick():
 
 def test_bench_train_quick(tmp_path):
     config = tmp_path / "tiny.yaml"
-    config.write_text(
-        "name: tiny\nnum_envs: 2\nrandom_steps: 16\nlearning_starts: 16\n"
-        "world: {humans: 3, time_limit: 4.0}\nencoder: {name: lsa}\ndsac: {batch_size: 16}\n"
-    )
-    script = SCRIPT.parent / "bench_train.py"
-    result = subprocess.run(
-        [sys.executable, str(script), "--config", str(config), "--episodes", "4"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert result.returncode == 0, result.stderr
+    config.write_text(TINY_TRAIN_YAML)
+    result = _run_bench("bench_train.py", "--config", str(config), "--episodes", "4")
     assert "identical episodes in both runs: yes" in result.stdout
     assert "| serial | 4 |" in result.stdout and "| two threads | 4 |" in result.stdout
 
 
 def test_bench_train_resume_from_a_run(tmp_path):
     config = tmp_path / "tiny.yaml"
-    config.write_text(
-        "name: tiny\nepisodes: 2\nnum_envs: 2\nrandom_steps: 16\nlearning_starts: 16\n"
-        "test_episodes: 0\nval_episodes: 2\n"
-        "world: {humans: 3, time_limit: 4.0}\nencoder: {name: lsa}\ndsac: {batch_size: 16}\n"
-    )
+    config.write_text(TINY_TRAIN_YAML + "episodes: 2\ntest_episodes: 0\nval_episodes: 2\n")
     run = tmp_path / "run"
     train = ["-m", "crowdplan.cli", "train", "--config", str(config), "--out", str(run)]
     subprocess.run([sys.executable, *train, "--no-progress"], check=True, timeout=300)
-    script = SCRIPT.parent / "bench_train.py"
-    result = subprocess.run(
-        [sys.executable, str(script), "--resume-from", str(run), "--episodes", "2"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert result.returncode == 0, result.stderr
+    result = _run_bench("bench_train.py", "--resume-from", str(run), "--episodes", "2")
     assert "continued from episode 2" in result.stdout
     row = result.stdout.strip().splitlines()[-1]
     assert row.startswith("| 2 |") and float(row.split("|")[-2]) > 0  # h / 10k episodes
