@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import io
 import math
 
@@ -115,7 +116,7 @@ def test_update_runs_with_every_encoder(encoder, share_encoder):
     changed = [not torch.equal(b, p) for b, p in zip(before, agent.actor.parameters(), strict=True)]
     assert any(changed)
     if share_encoder:  # the shared encoder belongs to the critic's parameter group only
-        actor_group = next(g for g in agent.optimizer.param_groups if g["name"] == "actor")
+        actor_group = next(g for g in agent.actor_optimizer.param_groups if g["name"] == "actor")
         encoder_ids = {id(p) for p in agent.critic.encoder.parameters()}
         assert not encoder_ids & {id(p) for p in actor_group["params"]}
 
@@ -236,4 +237,29 @@ def test_state_dict_round_trip_resumes_identically():
     for _ in range(2):
         assert a.update(batch) == b.update(batch)
     for pa, pb in zip(a.critic.parameters(), b.critic.parameters(), strict=True):
+        assert torch.equal(pa, pb)
+
+
+def test_loads_checkpoints_of_one_joint_optimizer():
+    """Checkpoints written when one Adam held the critic, actor and alpha groups still resume."""
+    batch = small_batch()
+    a = DSAC(DSACConfig(), EncoderConfig(name="lsa"), seed=1)
+    for _ in range(3):
+        a.update(batch)
+    state = copy.deepcopy(a.state_dict())  # as from a file: no tensor shared with `a`
+    critic_opt, actor_opt = state.pop("critic_optimizer"), state.pop("actor_optimizer")
+    offset = len(critic_opt["param_groups"][0]["params"])  # the old ids ran on across groups
+    state["optimizer"] = {
+        "state": {
+            **critic_opt["state"],
+            **{i + offset: s for i, s in actor_opt["state"].items()},
+        },
+        "param_groups": critic_opt["param_groups"]
+        + [{**g, "params": [i + offset for i in g["params"]]} for g in actor_opt["param_groups"]],
+    }
+    b = DSAC(DSACConfig(), EncoderConfig(name="lsa"), seed=2)
+    b.load_state_dict(state)
+    for _ in range(2):
+        assert a.update(batch) == b.update(batch)
+    for pa, pb in zip(a.actor.parameters(), b.actor.parameters(), strict=True):
         assert torch.equal(pa, pb)

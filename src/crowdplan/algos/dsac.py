@@ -142,10 +142,12 @@ class DSAC:
         self.target_entropy = config.target_entropy_scale * math.log(config.n_actions)
 
         actor_params = self.actor.head if config.share_encoder else self.actor
-        # One Adam with a parameter group per network (see `update` for why one step suffices).
-        self.optimizer = torch.optim.Adam(
+        # One Adam per half of the update, so that each half can take its step on its own thread.
+        self.critic_optimizer = torch.optim.Adam(
+            [{"params": list(self.critic.parameters()), "name": "critic"}], lr=config.lr, fused=True
+        )
+        self.actor_optimizer = torch.optim.Adam(
             [
-                {"params": list(self.critic.parameters()), "name": "critic"},
                 {"params": list(actor_params.parameters()), "name": "actor"},
                 {"params": [self.log_alpha], "name": "alpha"},
             ],
@@ -188,19 +190,17 @@ class DSAC:
         ``batch`` holds the keys of :meth:`crowdplan.algos.buffer.ReplayBuffer.sample`. Returns
         floats: ``qf1_loss, qf2_loss, qf_loss, actor_loss, alpha_loss, alpha, entropy, qf_mean``.
         """
-        cfg = self.config
         obs = (batch["robot"], batch["humans"], batch["mask"])
         next_obs = (batch["next_robot"], batch["next_humans"], batch["next_mask"])
         alpha = self.log_alpha.detach().exp()
 
         # The critic loss and the policy + temperature losses act on disjoint parameters and
         # every cross term (Q in the policy loss, alpha in both, the entropy in the temperature
-        # loss) is detached, so their two backward passes and one Adam step over the three
-        # parameter groups equal three separate optimiser steps. With ``parallel_update`` the
-        # policy's work (pi(s'), pi(s), its backward) and the critic's (Q'(s'), Q(s), its
-        # backward) run on two threads, exchanging pi(.|s') and min Q(s, .) through futures;
-        # torch releases the GIL inside its kernels, and the results are bitwise the same.
-        self.optimizer.zero_grad(set_to_none=True)
+        # loss) is detached, so each half can take its own optimiser step as soon as its backward
+        # is done. With ``parallel_update`` the policy's work (pi(s'), pi(s), its backward and
+        # step) and the critic's (Q'(s'), Q(s), its backward, step and target update) run on two
+        # threads, exchanging pi(.|s') and min Q(s, .) through futures; torch releases the GIL
+        # inside its kernels, and the results are bitwise the same as on one thread.
         next_policy: Future[tuple[Tensor, Tensor]] = Future()
         min_qf_values: Future[Tensor] = Future()
         critic_args = (obs, next_obs, batch["action"], batch["reward"], batch["done"], alpha)
@@ -219,11 +219,8 @@ class DSAC:
                 wait([critic_job])  # it fails too (its inputs are failed futures); let it finish
                 raise
             critic_stats = critic_job.result()
-        self.optimizer.step()
-
-        with torch.no_grad():
-            # target <- target + tau (critic - target), one fused call over all tensors
-            torch._foreach_lerp_(self._target_params, self._critic_params, cfg.tau)
+        if self.config.share_encoder:
+            self._step_critic()
         self.n_updates += 1
 
         qf1_loss, qf2_loss, qf_loss, qf_mean = critic_stats
@@ -254,8 +251,9 @@ class DSAC:
         next_policy: Future[tuple[Tensor, Tensor]],
         min_qf_values: Future[Tensor],
     ) -> tuple[Tensor, ...]:
-        """Soft target, twin-critic loss and its backward; hands min(Q1, Q2)(s, .) to the policy
+        """Soft target, twin-critic loss, backward and step; hands min(Q1, Q2)(s, .) to the policy
         step through ``min_qf_values`` as soon as the critic's forward pass has it."""
+        self.critic_optimizer.zero_grad(set_to_none=True)
         try:
             with torch.no_grad():
                 qf1_next_target, qf2_next_target = self.critic_target(*next_obs)
@@ -279,7 +277,16 @@ class DSAC:
             if not min_qf_values.done():  # never leave the policy step waiting
                 min_qf_values.set_exception(error)
             raise
+        if not self.config.share_encoder:
+            # a shared encoder is still being read by the policy half: `update` steps it later
+            self._step_critic()
         return qf1_loss.detach(), qf2_loss.detach(), qf_loss.detach(), qf1_a_values.mean().detach()
+
+    def _step_critic(self) -> None:
+        """Adam step of the critic, then ``target <- target + tau (critic - target)``."""
+        self.critic_optimizer.step()
+        with torch.no_grad():
+            torch._foreach_lerp_(self._target_params, self._critic_params, self.config.tau)
 
     @torch.no_grad()
     def _next_policy(
@@ -296,7 +303,9 @@ class DSAC:
     def _actor_step(
         self, obs: tuple[Tensor, Tensor, Tensor], alpha: Tensor, min_qf_values: Future[Tensor]
     ) -> tuple[Tensor, ...]:
-        """Policy loss against this batch's (detached) critic values, temperature loss, backward."""
+        """Policy loss against this batch's (detached) critic values, temperature loss, backward
+        and the Adam step of the policy and the temperature."""
+        self.actor_optimizer.zero_grad(set_to_none=True)
         log_pi = F.log_softmax(self.actor(*obs)[0], dim=1)
         action_probs = log_pi.exp()
         actor_loss = (action_probs * (alpha * log_pi - min_qf_values.result())).sum(dim=1).mean()
@@ -304,6 +313,7 @@ class DSAC:
         entropy = -(action_probs.detach() * log_pi.detach()).sum(dim=1)
         alpha_loss = (self.log_alpha * (entropy - self.target_entropy)).mean()
         (actor_loss + (alpha_loss if self.config.autotune_alpha else 0.0)).backward()
+        self.actor_optimizer.step()
         return actor_loss.detach(), alpha_loss.detach(), entropy.mean()
 
     def state_dict(self) -> dict[str, Any]:
@@ -313,7 +323,8 @@ class DSAC:
             "critic_target": self.critic_target.state_dict(),
             "actor": self.actor.state_dict(),
             "log_alpha": self.log_alpha.detach().clone(),
-            "optimizer": self.optimizer.state_dict(),
+            "critic_optimizer": self.critic_optimizer.state_dict(),
+            "actor_optimizer": self.actor_optimizer.state_dict(),
             "n_updates": self.n_updates,
         }
 
@@ -324,5 +335,26 @@ class DSAC:
         self.actor.load_state_dict(state["actor"])
         with torch.no_grad():
             self.log_alpha.copy_(state["log_alpha"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        if "optimizer" in state:  # checkpoints of versions with one Adam over all three groups
+            critic_state, actor_state = _split_joint_optimizer_state(state["optimizer"])
+        else:
+            critic_state, actor_state = state["critic_optimizer"], state["actor_optimizer"]
+        self.critic_optimizer.load_state_dict(critic_state)
+        self.actor_optimizer.load_state_dict(actor_state)
         self.n_updates = int(state["n_updates"])
+
+
+def _split_joint_optimizer_state(state: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Split the state of one Adam with groups (critic, actor, alpha) into the states of the
+    critic's Adam and of the actor's (actor, alpha). Parameter ids may stay as saved: Adam maps
+    them onto its parameters by their position in the groups."""
+    critic_groups, actor_groups = state["param_groups"][:1], state["param_groups"][1:]
+
+    def part(groups: list[dict[str, Any]]) -> dict[str, Any]:
+        ids = {i for group in groups for i in group["params"]}
+        return {
+            "state": {i: s for i, s in state["state"].items() if i in ids},
+            "param_groups": groups,
+        }
+
+    return part(critic_groups), part(actor_groups)
