@@ -1,6 +1,7 @@
 """Training pipeline: determinism, exact resume, config and checkpoint errors."""
 
 import dataclasses
+import json
 import os
 import signal
 
@@ -59,6 +60,14 @@ def test_resume_after_stop_continues_exactly(tmp_path):
     resumed.run()
     assert torch.equal(_weights(straight), _weights(resumed))
     assert [e["seed"] for e in straight.episodes] == [e["seed"] for e in resumed.episodes]
+
+
+def test_run_records_the_commit_it_started_with(tmp_path, monkeypatch):
+    versions = iter(["started-with", "committed-later"])
+    monkeypatch.setattr("crowdplan.training.git_hash", lambda: next(versions))
+    trainer = _train(tmp_path, "a", episodes=2)
+    meta = json.loads((trainer.run_dir / "meta.json").read_text())
+    assert meta["git"] == "started-with"
 
 
 def test_resume_with_another_validation_interval_and_update_threads_trains_identically(tmp_path):

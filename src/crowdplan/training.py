@@ -167,6 +167,8 @@ class Trainer:
         self.config = config
         self.run_dir = Path(run_dir)
         self.progress = progress
+        # the commit of the code this process runs: read once, since the tree may move on
+        self.code_version = git_hash()
         cfg = config
         if cfg.device != "cpu" and not torch.cuda.is_available():
             raise ValueError(f"device {cfg.device!r} was asked for but CUDA is not available")
@@ -298,7 +300,7 @@ class Trainer:
         info = {
             "name": self.config.name,
             "seed": self.config.seed,
-            "git": git_hash(),
+            "git": self.code_version,
             "episodes_trained": len(self.episodes),
             **extra,
         }
@@ -359,7 +361,7 @@ class Trainer:
             {
                 "name": self.config.name,
                 "seed": self.config.seed,
-                "git": git_hash(),
+                "git": self.code_version,
                 "train_episode_seeds": [TRAIN_SEED_BASE, TRAIN_SEED_BASE + done - 1]
                 if done
                 else [],
