@@ -141,10 +141,11 @@ def test_train_eval_render_model(tmp_path, capsys):
     # a second fresh run into the same folder is refused instead of overwriting it
     assert main(["train", "--config", str(config), "--out", str(run)]) == 2
     assert "already holds a run" in capsys.readouterr().err
-    # --resume extends the episode budget (and may change the validation interval)
+    # --resume extends the episode budget (and may change the validation interval and threads)
     resume = ["train", "--out", str(run), "--resume", "--no-progress", "--episodes", "6"]
-    assert main([*resume, "--val-interval", "1"]) == 0
-    assert yaml.safe_load((run / "config.yaml").read_text())["val_interval"] == 1
+    assert main([*resume, "--val-interval", "1", "--parallel-update"]) == 0
+    resolved = yaml.safe_load((run / "config.yaml").read_text())
+    assert resolved["val_interval"] == 1 and resolved["dsac"]["parallel_update"] is True
     assert json.loads((run / "meta.json").read_text())["episodes"] >= 6
 
 

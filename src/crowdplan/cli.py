@@ -147,6 +147,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="episodes between validations (may change on --resume)",
     )
+    p.add_argument(
+        "--parallel-update",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="critic and policy halves of each update on two threads (bitwise the same results; "
+        "may change on --resume)",
+    )
     p.add_argument("--out", default=None, help="run folder (default runs/<name>-s<seed>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--no-progress", action="store_true", help="plain log lines, no progress bar")

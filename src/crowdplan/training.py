@@ -600,6 +600,9 @@ def train_from_cli(args) -> int:
             raise ValueError(f"{run_dir} already holds a run; use --resume or another --out")
     overrides = {"episodes": args.episodes, "val_interval": args.val_interval}
     config = dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
+    if args.parallel_update is not None:
+        dsac = dataclasses.replace(config.dsac, parallel_update=args.parallel_update)
+        config = dataclasses.replace(config, dsac=dsac)
     config = config_from_dict(config.to_dict())  # the same checks as a YAML file gets
     trainer = Trainer(config, run_dir, progress=not args.no_progress)
     if args.resume:
