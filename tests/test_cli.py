@@ -86,7 +86,7 @@ def test_render_png_and_gif(tmp_path):
     [
         (["eval", "--policy", "nope"], "unknown policy 'nope'"),
         (["eval", "--humans", "-2"], "humans must be an integer >= 0"),
-        (["eval", "--option", "warp=1"], "unknown option(s) ['warp']"),
+        (["eval", "--option", "warp=1"], "unknown key(s) ['warp']"),
         (["eval", "--episodes", "0"], "--episodes must be >= 1"),
         (["eval", "--batch-size", "0"], "--batch-size must be >= 1"),
         (["eval", "--option", "kinematics=unicycle"], "drives holonomic robots"),

@@ -36,7 +36,7 @@ def test_options_pass_through_and_padding():
 
 
 def test_unknown_option_is_named():
-    with pytest.raises(ValueError, match="unknown option"):
+    with pytest.raises(ValueError, match="unknown key"):
         gym.make("crowdplan/CircleCrossing-v0", colour="red")
 
 

@@ -191,7 +191,7 @@ def test_batched_equals_single():
         ({"human_v_pref": -1.0}, "human_v_pref must be a positive number"),
         ({"kinematics": "car"}, "kinematics must be one of"),
         ({"speed_sampling": "log"}, "speed_sampling must be one of"),
-        ({"bogus": 1}, "unknown option(s) ['bogus']"),
+        ({"bogus": 1}, "unknown key(s) ['bogus']"),
     ],
 )
 def test_bad_config_is_named(changes, fragment):

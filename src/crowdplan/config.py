@@ -1,12 +1,16 @@
-"""Typed configuration of the world; defaults follow SPEC.md sections 1-2 (CrowdNav / LSA-DSAC).
+"""Typed configuration: the world (SPEC.md sections 1-2) and the one strict loader of every config.
 
-Every field is validated in ``__post_init__`` so that a bad value fails early with a message that
-names the parameter and its valid range.
+Every config dataclass checks its fields in ``__post_init__`` with :func:`check_fields` (type from
+the annotation, range or choices from the field's metadata, see :func:`spec`), so a bad value fails
+when the config is built, from YAML or from code, with a message that names the parameter and its
+valid range. :func:`from_dict` builds any config dataclass from parsed YAML, refusing unknown keys.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import types
+import typing
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -39,6 +43,7 @@ class OrcaConfig:
     radius_pad: float = 0.01  # ORCA radius = body radius + pad (CrowdNav)
 
     def __post_init__(self) -> None:
+        check_fields(self, "orca")
         _positive("orca.neighbor_dist", self.neighbor_dist)
         _require(
             isinstance(self.max_neighbors, int) and self.max_neighbors >= 1,
@@ -93,6 +98,9 @@ class WorldConfig:
     orca: OrcaConfig = field(default_factory=OrcaConfig)
 
     def __post_init__(self) -> None:
+        if isinstance(self.orca, dict):
+            object.__setattr__(self, "orca", from_dict(OrcaConfig, self.orca, "world.orca"))
+        check_fields(self, "world")
         _require(
             self.scenario in SCENARIOS,
             f"scenario must be one of {SCENARIOS}, got {self.scenario!r}",
@@ -128,8 +136,6 @@ class WorldConfig:
             isinstance(self.placement_tries, int) and self.placement_tries >= 1,
             f"placement_tries must be an integer >= 1, got {self.placement_tries!r}",
         )
-        if isinstance(self.orca, dict):
-            object.__setattr__(self, "orca", OrcaConfig(**self.orca))
 
     @property
     def max_steps(self) -> int:
@@ -138,24 +144,112 @@ class WorldConfig:
 
     def replace(self, **changes: Any) -> WorldConfig:
         """Return a copy with some fields changed (validated again)."""
-        return _from_dict(type(self), {**dataclasses.asdict(self), **changes}, "world")
+        return from_dict(type(self), {**dataclasses.asdict(self), **changes}, "world")
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> WorldConfig:
         """Build from a plain dict (YAML), rejecting unknown keys by name."""
-        return _from_dict(cls, data, "world")
+        return from_dict(cls, data, "world")
 
 
-def _from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
+# ---------------------------------------------------------------------- the strict loader
+def spec(
+    default: Any = dataclasses.MISSING,
+    *,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+    choices: tuple[Any, ...] | None = None,
+    default_factory: Any = dataclasses.MISSING,
+) -> Any:
+    """A dataclass field with its valid range (``low <= x <= high``; ``low < x`` with
+    ``low_open``) or its valid choices, checked by :func:`check_fields`."""
+    metadata = {"low": low, "high": high, "low_open": low_open, "choices": choices}
+    return field(default=default, default_factory=default_factory, metadata=metadata)
+
+
+def from_dict(cls: type, data: Any, where: str) -> Any:
+    """Build the config dataclass ``cls`` from a plain mapping (parsed YAML).
+
+    Unknown keys are refused by name; nested dataclass fields may be given as mappings; every
+    value is then type- and range-checked by the class's own ``__post_init__``.
+    """
+    if data is None:
+        data = {}
     if not isinstance(data, dict):
-        raise ValueError(f"{where} must be a mapping, got {type(data).__name__}")
-    known = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - known)
+        raise ValueError(f"{where} must be a mapping of keys to values, got {data!r}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
     if unknown:
-        raise ValueError(
-            f"unknown option(s) {unknown} in {where}; valid options are {sorted(known)}"
-        )
-    return cls(**data)
+        raise ValueError(f"unknown key(s) {unknown} in {where}; valid keys are {sorted(fields)}")
+    hints = typing.get_type_hints(cls)
+    values = {}
+    for name, value in data.items():
+        hint = hints[name]
+        if dataclasses.is_dataclass(hint) and isinstance(value, dict):
+            value = from_dict(hint, value, f"{where}.{name}")
+        values[name] = value
+    return cls(**values)
+
+
+def check_fields(obj: Any, where: str) -> None:
+    """Check (and normalise: int -> float, list -> tuple) every field of a config dataclass.
+
+    Raises ValueError naming ``where.field``, the expected type and the valid range.
+    """
+    hints = typing.get_type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        name = f"{where}.{f.name}"
+        value = _checked_value(name, getattr(obj, f.name), hints[f.name])
+        object.__setattr__(obj, f.name, value)
+        low, high = f.metadata.get("low"), f.metadata.get("high")
+        choices = f.metadata.get("choices")
+        if choices is not None and value not in choices:
+            raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
+        too_low = low is not None and (value <= low if f.metadata.get("low_open") else value < low)
+        if too_low or (high is not None and value > high):
+            raise ValueError(f"{name} must be {_range_text(f.metadata)}, got {value!r}")
+
+
+def _range_text(metadata: Any) -> str:
+    parts = []
+    if metadata.get("low") is not None:
+        parts.append(f"{'>' if metadata.get('low_open') else '>='} {metadata['low']}")
+    if metadata.get("high") is not None:
+        parts.append(f"<= {metadata['high']}")
+    return " and ".join(parts)
+
+
+def _checked_value(name: str, value: Any, hint: Any) -> Any:
+    """``value`` converted to the annotation's type where that is lossless, else ValueError."""
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        options = [h for h in typing.get_args(hint) if h is not type(None)]
+        if value is None and len(options) < len(typing.get_args(hint)):
+            return None
+        hint = options[0] if len(options) == 1 else hint
+        origin = typing.get_origin(hint)
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"{name} must be true or false, got {value!r}")
+    elif hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f"{name} must be an integer, got {value!r}")
+    elif hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"{name} must be a number, got {value!r}")
+        return float(value)
+    elif hint is str:
+        if not isinstance(value, str):
+            raise ValueError(f"{name} must be a string, got {value!r}")
+    elif origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ValueError(f"{name} must be a list, got {value!r}")
+        item_hint = typing.get_args(hint)[0]
+        return tuple(_checked_value(f"{name}[{i}]", v, item_hint) for i, v in enumerate(value))
+    elif dataclasses.is_dataclass(hint) and not isinstance(value, hint):
+        raise ValueError(f"{name} must be a mapping of {hint.__name__} keys, got {value!r}")
+    return value
 
 
 def to_dict(obj: Any) -> dict[str, Any]:
