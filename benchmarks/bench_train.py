@@ -68,7 +68,8 @@ def main() -> None:
         warm.env.step(np.zeros(base.num_envs, dtype=np.int64))
         for parallel in (False, True):
             config = dataclasses.replace(
-                base, dsac=dataclasses.replace(base.dsac, parallel_update=parallel)
+                base,
+                algo_config=dataclasses.replace(base.algo_config, parallel_update=parallel),
             )
             trainer = train(config, Path(tmp) / f"parallel-{parallel}")
             episodes.append(
@@ -106,7 +107,7 @@ def time_trained_run(source: Path, episodes: int) -> None:
     config = dataclasses.replace(
         config,
         val_interval=10**9,
-        dsac=dataclasses.replace(config.dsac, parallel_update=True),
+        algo_config=dataclasses.replace(config.algo_config, parallel_update=True),
     )
     torch.set_num_threads(config.torch_threads)
     with tempfile.TemporaryDirectory() as tmp:
@@ -127,7 +128,7 @@ def time_trained_run(source: Path, episodes: int) -> None:
     print(
         f"torch {torch.__version__}, threads={config.torch_threads}, run={source} "
         f"(continued from episode {start_episodes}), "
-        f"parallel_update={config.dsac.parallel_update}\n"
+        f"parallel_update={config.algo_config.parallel_update}\n"
     )
     print("| episodes | env steps per episode | ms per env step | train s | h / 10k episodes |")
     print("|---:|---:|---:|---:|---:|")

@@ -1,9 +1,11 @@
 """Training pipeline: determinism, exact resume, config and checkpoint errors."""
 
 import dataclasses
+import hashlib
 import json
 import os
 import signal
+from pathlib import Path
 
 import pytest
 import torch
@@ -34,7 +36,7 @@ def _train(tmp_path, name, episodes=6, **changes):
 
 
 def _weights(trainer):
-    return torch.cat([p.detach().flatten() for p in trainer.agent.actor.parameters()])
+    return torch.cat([p.detach().flatten() for p in trainer.agent.core.actor.parameters()])
 
 
 def test_same_seed_twice_is_identical(tmp_path):
@@ -64,7 +66,7 @@ def test_resume_after_stop_continues_exactly(tmp_path):
 
 def test_run_records_the_commit_it_started_with(tmp_path, monkeypatch):
     versions = iter(["started-with", "committed-later"])
-    monkeypatch.setattr("crowdplan.training.git_hash", lambda: next(versions))
+    monkeypatch.setattr("crowdplan.training.loop.git_hash", lambda: next(versions))
     trainer = _train(tmp_path, "a", episodes=2)
     meta = json.loads((trainer.run_dir / "meta.json").read_text())
     assert meta["git"] == "started-with"
@@ -74,7 +76,7 @@ def test_resume_with_another_validation_interval_and_update_threads_trains_ident
     straight = _train(tmp_path, "straight", episodes=8)
     first = _train(tmp_path, "resumed", episodes=3)
     config = dataclasses.replace(config_from_dict(TINY), episodes=8, val_interval=3)
-    config.dsac = dataclasses.replace(config.dsac, parallel_update=True)
+    config.algo_config = dataclasses.replace(config.algo_config, parallel_update=True)
     resumed = Trainer(config, tmp_path / "resumed", False)
     resumed.restore(tmp_path / "resumed" / "checkpoint.pt")
     resumed.run()
@@ -128,7 +130,7 @@ def test_checkpoint_from_another_encoder_is_refused(tmp_path):
         ({**TINY, "encoder": {"name": "transformer"}}, "transformer"),
         ({**TINY, "learning_rate": 1}, "unknown key(s) ['learning_rate']"),
         ({**TINY, "dsac": {"gama": 0.9}}, "unknown key(s) ['gama']"),
-        ({**TINY, "num_envs": 0}, "num_envs must be an integer >= 1"),
+        ({**TINY, "num_envs": 0}, "num_envs must be >= 1, got 0"),
         ([1, 2], "must be a YAML mapping"),
     ],
 )
@@ -149,14 +151,14 @@ def test_shipped_presets_load():
     for name in ("raw", "rg", "aw", "sa", "lsa"):
         config = load_config(f"configs/{name}_dsac.yaml")
         assert config.encoder.name == name and config.world.humans == 5
-        assert config.dsac.target_entropy_scale == 0.98  # the paper's setting
+        assert config.algo_config.target_entropy_scale == 0.98  # the paper's setting
     for name in ("rg", "aw", "sa", "lsa"):
         config = load_config(f"configs/{name}_dsac_ent05.yaml")
-        assert config.encoder.name == name and config.dsac.target_entropy_scale == 0.5
+        assert config.encoder.name == name and config.algo_config.target_entropy_scale == 0.5
     # the discount read as 0.95 per second of travel: 0.95 ** (dt * v_pref) per step
     config = load_config("configs/lsa_dsac_ent05_gsec.yaml")
     per_second = 0.95 ** (config.world.dt * config.world.robot_v_pref)
-    assert config.dsac.gamma == pytest.approx(per_second, abs=1e-9)
+    assert config.algo_config.gamma == pytest.approx(per_second, abs=1e-9)
 
 
 def test_update_to_data_ratio(tmp_path):
@@ -172,3 +174,41 @@ def test_cuda_without_cuda_is_explained(tmp_path):
     config = config_from_dict({**TINY, "device": "cuda"})
     with pytest.raises(ValueError, match="CUDA is not available"):
         Trainer(config, tmp_path / "run", progress=False)
+
+
+@pytest.mark.parametrize("encoder", ["lsa", "rg"])
+def test_dsac_trains_bitwise_as_before_the_training_core_split(tmp_path, encoder):
+    """tests/data/dsac_reference.json holds weights of runs made by the DSAC-only training loop
+    that preceded the algorithm plug-ins; the same configs must give the same bits today."""
+    reference = json.loads(Path("tests/data/dsac_reference.json").read_text())[encoder]
+    trainer = Trainer(config_from_dict(reference["config"]), tmp_path / encoder, progress=False)
+    trainer.run()
+    actor = trainer.agent.core.actor.parameters()
+    digest = hashlib.sha256(b"".join(p.detach().numpy().tobytes() for p in actor)).hexdigest()
+    assert digest == reference["actor_sha256"]
+    episodes = [[e["outcome"], e["steps"], e["return"]] for e in trainer.episodes]
+    assert episodes == reference["episodes"]
+    assert [v["mean_reward"] for v in trainer.validations] == reference["validation"]
+
+
+@pytest.mark.parametrize(
+    ("data", "fragment"),
+    [
+        ({**TINY, "dsac": {"lr": "fast"}}, "dsac.lr must be a number, got 'fast'"),
+        ({**TINY, "dsac": {"batch_size": -4}}, "dsac.batch_size must be >= 1, got -4"),
+        ({**TINY, "algo": "ppo"}, "unknown algorithm 'ppo'"),
+        ({**TINY, "value_rl": {}}, "unknown key(s) ['value_rl']"),
+        ({**TINY, "episodes": 1.5}, "episodes must be an integer, got 1.5"),
+        ({**TINY, "world": {"visible_robot": "maybe"}}, "visible_robot must be true or false"),
+    ],
+)
+def test_every_config_field_is_checked_at_load_time(data, fragment):
+    with pytest.raises(ValueError) as error:
+        config_from_dict(data)
+    assert fragment in str(error.value)
+
+
+def test_old_top_level_dsac_keys_still_load():
+    config = config_from_dict({**TINY, "buffer_size": 1234})
+    assert config.algo_config.buffer_size == 1234
+    assert "buffer_size" in config.to_dict()["dsac"] and "buffer_size" not in config.to_dict()

@@ -14,8 +14,10 @@ import typing
 from dataclasses import dataclass, field
 from typing import Any
 
-SCENARIOS = ("circle_crossing", "square_crossing")
+SCENARIOS = ("circle_crossing", "square_crossing", "replay", "custom")
 KINEMATICS = ("holonomic", "unicycle")
+ACTION_FRAMES = ("goal", "world")
+REPLAY_SCENES = ("eth", "hotel", "zara1", "zara2", "univ")
 SPEED_SAMPLINGS = ("linear", "exponential")
 
 
@@ -56,6 +58,31 @@ class OrcaConfig:
 
 
 @dataclass(frozen=True)
+class SocialForceConfig:
+    """Social-force humans (Helbing & Molnar 1995; Helbing, Farkas & Vicsek 2000), per unit mass.
+
+    Acceleration of human i: ``(v_pref * e_i - v_i) / tau`` towards its goal plus, for every other
+    agent j, ``a * exp((r_i + r_j - d_ij) / b) * n_ji * w`` with ``n_ji`` the unit vector from j
+    to i and the anisotropy ``w = lam + (1 - lam) * (1 + cos phi) / 2`` (phi: angle between i's
+    desired direction and the direction to j). Speeds are capped at ``max_speed_factor * v_pref``.
+    """
+
+    tau: float = 0.5
+    a: float = 2.1
+    b: float = 0.3
+    lam: float = 0.35
+    max_speed_factor: float = 1.3
+
+    def __post_init__(self) -> None:
+        check_fields(self, "social_force")
+        for name in ("tau", "a", "b", "max_speed_factor"):
+            _positive(f"social_force.{name}", getattr(self, name))
+        _require(
+            0.0 <= self.lam <= 1.0, f"social_force.lam must be in [0, 1], got {self.lam!r}"
+        )
+
+
+@dataclass(frozen=True)
 class WorldConfig:
     """Everything that defines an episode besides its seed.
 
@@ -76,6 +103,21 @@ class WorldConfig:
         discomfort_dist: distance below which the discomfort penalty applies (0.2 m).
         placement_tries: rejection-sampling attempts per human before giving up.
         orca: ORCA parameters of the humans.
+        action_frame: "goal" (holonomic action headings relative to the robot->goal direction;
+            the default) or "world" (the paper's absolute headings); see ``sim/actions.py``.
+        goal_rotation: the whole generated scene rotated by this many degrees about the origin.
+        random_goal_direction: rotate each episode's scene by an angle drawn from its seed.
+        humans_min: when set, each episode has N ~ U{humans_min..humans} humans (the others are
+            absent: masked out and never collide).
+        social_force_fraction, static_fraction, waiting_fraction: probability that a generated
+            human is driven by the social force, stands still, or walks with ORCA but stops
+            ``wait_after`` seconds into the episode for ``wait_for`` seconds (the rest are ORCA).
+        replay_scenes: ETH/UCY scenes of the replay scenario (eth and hotel are for development
+            and training; zara1, zara2 and univ are held out: measuring only).
+        replay_min_humans: fewest replayed pedestrians near the robot's path in a replay case.
+        replay_fraction: probability that a circle/square episode is a replay case instead.
+        scenario_file: YAML scenario file of the "custom" scenario (docs/scenarios.md).
+        social_force: parameters of social-force humans.
     """
 
     scenario: str = "circle_crossing"
@@ -96,11 +138,29 @@ class WorldConfig:
     discomfort_dist: float = 0.2
     placement_tries: int = 1000
     orca: OrcaConfig = field(default_factory=OrcaConfig)
+    action_frame: str = "goal"
+    goal_rotation: float = 0.0
+    random_goal_direction: bool = False
+    humans_min: int | None = None
+    social_force_fraction: float = 0.0
+    static_fraction: float = 0.0
+    waiting_fraction: float = 0.0
+    wait_after: float = 2.0
+    wait_for: float = 5.0
+    replay_scenes: tuple[str, ...] = ("eth", "hotel")
+    replay_min_humans: int = 3
+    replay_fraction: float = 0.0
+    scenario_file: str | None = None
+    social_force: SocialForceConfig = field(default_factory=SocialForceConfig)
 
     def __post_init__(self) -> None:
         if isinstance(self.orca, dict):
             object.__setattr__(self, "orca", from_dict(OrcaConfig, self.orca, "world.orca"))
+        if isinstance(self.social_force, dict):
+            value = from_dict(SocialForceConfig, self.social_force, "world.social_force")
+            object.__setattr__(self, "social_force", value)
         check_fields(self, "world")
+        self._check_generalization_options()
         _require(
             self.scenario in SCENARIOS,
             f"scenario must be one of {SCENARIOS}, got {self.scenario!r}",
@@ -135,6 +195,45 @@ class WorldConfig:
         _require(
             isinstance(self.placement_tries, int) and self.placement_tries >= 1,
             f"placement_tries must be an integer >= 1, got {self.placement_tries!r}",
+        )
+
+    def _check_generalization_options(self) -> None:
+        _require(
+            self.action_frame in ACTION_FRAMES,
+            f"action_frame must be one of {ACTION_FRAMES}, got {self.action_frame!r}",
+        )
+        _require(
+            self.humans_min is None or 0 <= self.humans_min <= self.humans,
+            f"humans_min must be between 0 and humans ({self.humans}), got {self.humans_min!r}",
+        )
+        fractions = ("social_force_fraction", "static_fraction", "waiting_fraction")
+        for name in (*fractions, "replay_fraction"):
+            value = getattr(self, name)
+            _require(0.0 <= value <= 1.0, f"{name} must be in [0, 1], got {value!r}")
+        total = sum(getattr(self, name) for name in fractions)
+        _require(total <= 1.0, f"{' + '.join(fractions)} must be <= 1, got {total!r}")
+        _require(self.wait_after >= 0, f"wait_after must be >= 0, got {self.wait_after!r}")
+        _require(self.wait_for >= 0, f"wait_for must be >= 0, got {self.wait_for!r}")
+        unknown = [s for s in self.replay_scenes if s not in REPLAY_SCENES]
+        _require(
+            bool(self.replay_scenes) and not unknown,
+            f"replay_scenes must be a non-empty list of {list(REPLAY_SCENES)}, "
+            f"got {list(self.replay_scenes)!r}",
+        )
+        _require(
+            self.replay_min_humans >= 1,
+            f"replay_min_humans must be >= 1, got {self.replay_min_humans!r}",
+        )
+        _require(
+            self.scenario != "replay" or self.humans >= self.replay_min_humans,
+            f"the replay scenario places {self.replay_min_humans} or more pedestrians "
+            f"(replay_min_humans) but humans is {self.humans}: raise humans (e.g. 10)",
+        )
+        _require(
+            (self.scenario == "custom") == (self.scenario_file is not None),
+            "scenario 'custom' needs scenario_file (a YAML scenario, docs/scenarios.md) and "
+            f"scenario_file needs scenario 'custom'; got scenario {self.scenario!r} with "
+            f"scenario_file {self.scenario_file!r}",
         )
 
     @property
@@ -199,7 +298,7 @@ def check_fields(obj: Any, where: str) -> None:
     """
     hints = typing.get_type_hints(type(obj))
     for f in dataclasses.fields(obj):
-        name = f"{where}.{f.name}"
+        name = f"{where}.{f.name}" if where else f.name
         value = _checked_value(name, getattr(obj, f.name), hints[f.name])
         object.__setattr__(obj, f.name, value)
         low, high = f.metadata.get("low"), f.metadata.get("high")

@@ -1,11 +1,17 @@
 """Trained models as files: save a DSAC policy, load it back as a :class:`~crowdplan.policy.Policy`.
 
 A model file (``model.pt``) holds only plain data: the configs (as dicts) and the policy weights,
-so it loads with ``torch.load(weights_only=True)``. Shipped models live in ``models/<name>/``.
+so it loads with ``torch.load(weights_only=True)``. Shipped models live in the repository's
+``models/<name>/``; an installed wheel carries them to ``<prefix>/share/crowdplan/models/<name>/``
+(pyproject.toml, ``data-files``), so a shipped name resolves wherever the command runs.
 """
 
 from __future__ import annotations
 
+import re
+import site
+import sys
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -16,11 +22,27 @@ from crowdplan.algos.dsac import Actor, DSACConfig
 from crowdplan.config import WorldConfig, to_dict
 from crowdplan.features import robot_centric
 from crowdplan.nets.encoders import EncoderConfig, make_encoder
-from crowdplan.policy import PolicyOutput
+from crowdplan.policy import Policy, PolicyOutput
 from crowdplan.sim.actions import N_ACTIONS
 
 MODEL_FORMAT = "crowdplan-dsac-policy/1"
-SHIPPED_DIRS = (Path(__file__).resolve().parents[2] / "models", Path.cwd() / "models")
+MODEL_FILES = ("model.pt", "best_model.pt", "final_model.pt")
+
+
+def _shipped_dirs() -> tuple[Path, ...]:
+    """Where shipped models are: the source tree's ``models/`` (a checkout or an editable
+    install), then the data folder of the installation (a wheel, system-wide or ``--user``)."""
+    dirs = []
+    source = Path(__file__).resolve().parents[2]
+    if (source / "pyproject.toml").is_file():
+        dirs.append(source / "models")
+    for prefix in (sys.prefix, site.getuserbase()):
+        if prefix:
+            dirs.append(Path(prefix) / "share" / "crowdplan" / "models")
+    return tuple(dict.fromkeys(dirs))
+
+
+SHIPPED_DIRS = _shipped_dirs()
 
 
 class DSACPolicy:
@@ -59,43 +81,93 @@ def model_payload(
     }
 
 
+def shipped_models() -> list[str]:
+    """Names of the shipped models (folders holding a model.pt)."""
+    return sorted({p.parent.name for d in SHIPPED_DIRS if d.is_dir() for p in d.glob("*/model.pt")})
+
+
 def resolve_model_path(spec: str) -> Path:
-    """A model file from a path (file or run folder) or a shipped model name."""
+    """A model file from a path (file or run folder) or a shipped model name.
+
+    A folder yields the first of model.pt, best_model.pt (a run's best-validation model) and
+    final_model.pt it holds; a name that is no path is looked up among the shipped models.
+    """
     path = Path(spec)
-    candidates = [path, path / "model.pt", path / "best_model.pt", path / "final_model.pt"]
-    candidates += [d / spec / "model.pt" for d in SHIPPED_DIRS]
-    for candidate in candidates:
-        if candidate.is_file():
-            return candidate
-    shipped = sorted(
-        {p.name for d in SHIPPED_DIRS if d.is_dir() for p in d.iterdir() if p.is_dir()}
-    )
+    if path.is_file():
+        return path
+    if path.is_dir():
+        for name in MODEL_FILES:
+            if (path / name).is_file():
+                return path / name
+        raise FileNotFoundError(
+            f"folder {path} holds no model ({', '.join(MODEL_FILES)}); a training run writes "
+            "best_model.pt at its first validation"
+        )
+    for shipped in SHIPPED_DIRS:
+        if (shipped / spec / "model.pt").is_file():
+            return shipped / spec / "model.pt"
     raise FileNotFoundError(
         f"no model found at {spec!r}: pass a model file, a run folder containing best_model.pt, "
-        f"or a shipped model name ({', '.join(shipped) or 'none shipped'})"
+        f"or a shipped model name ({', '.join(shipped_models()) or 'none shipped'})"
     )
+
+
+_CHECKPOINT_FORMAT = re.compile(rb"crowdplan-[\w-]+-checkpoint/\d+")
+
+
+def _not_a_model(path: Path) -> str:
+    """Why ``path`` cannot be a model file, for files that torch cannot load as plain data."""
+    expected = (
+        f"--model takes a model file written by crowdplan train ({', '.join(MODEL_FILES)}), "
+        f"a run folder or a shipped model name ({', '.join(shipped_models()) or 'none shipped'})"
+    )
+    if not zipfile.is_zipfile(path):
+        kind = {".yaml": "a YAML file", ".yml": "a YAML file", ".json": "a JSON file"}.get(
+            path.suffix.lower(), "not a torch archive"
+        )
+        return f"{path} is {kind}, not a model file; {expected}"
+    with zipfile.ZipFile(path) as archive:
+        pickles = [n for n in archive.namelist() if n.endswith("data.pkl")]
+        data = archive.read(pickles[0]) if pickles else b""
+    if _CHECKPOINT_FORMAT.search(data):
+        return (
+            f"{path} is a training checkpoint (read by crowdplan train --resume), not a model "
+            f"file; evaluate its run folder {path.parent} (its best_model.pt) or final_model.pt"
+        )
+    return f"{path} is a torch file that is not a crowdplan model; {expected}"
 
 
 def load_payload(path: Path) -> dict[str, Any]:
-    """Read and check a model file; corrupted or foreign files raise a ValueError."""
+    """Read a model file of any algorithm; corrupted or foreign files raise a ValueError."""
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many types for damaged files
+        if not zipfile.is_zipfile(path) or "weights_only" in str(error):
+            raise ValueError(_not_a_model(path)) from None
         raise ValueError(f"cannot read model file {path}: {error}") from error
-    if not isinstance(payload, dict) or payload.get("format") != MODEL_FORMAT:
-        raise ValueError(f"{path} is not a crowdplan model file (expected format {MODEL_FORMAT})")
+    if not isinstance(payload, dict) or "format" not in payload:
+        raise ValueError(f"{path} is not a crowdplan model file (it has no 'format' entry)")
     return payload
 
 
-def load_model_policy(spec: str) -> tuple[DSACPolicy, WorldConfig]:
-    """Load a trained model as a greedy policy and the world config it was trained on."""
+def load_model_policy(spec: str) -> tuple[Policy, WorldConfig]:
+    """Load a trained model of any algorithm as a greedy policy and the world config it was
+    trained in; the file's ``format`` says which algorithm reads it."""
+    from crowdplan.algos.registry import algorithm_of_model
+
     path = resolve_model_path(spec)
     payload = load_payload(path)
+    return algorithm_of_model(payload["format"], path).load_policy(payload, path)
+
+
+def load_dsac_payload(payload: dict[str, Any], path: Path) -> tuple[DSACPolicy, WorldConfig]:
+    """The greedy policy of a DSAC model file (format :data:`MODEL_FORMAT`)."""
     encoder = EncoderConfig(**payload["encoder"])
     dsac = DSACConfig(
         **{k: tuple(v) if isinstance(v, list) else v for k, v in payload["dsac"].items()}
     )
-    world = WorldConfig.from_dict(payload["world"])
+    # Model files from before action frames existed were trained with world-frame actions.
+    world = WorldConfig.from_dict({"action_frame": "world", **payload["world"]})
     if dsac.n_actions != N_ACTIONS:
         raise ValueError(
             f"{path} was trained for {dsac.n_actions} actions; the world's action table has "
@@ -109,5 +181,5 @@ def load_model_policy(spec: str) -> tuple[DSACPolicy, WorldConfig]:
             f"weights in {path} do not match encoder {encoder.name!r}: {error}"
         ) from error
     name = payload["info"].get("name", f"{encoder.name}-dsac")
-    metadata = {"model": str(path), "encoder": encoder.name, **payload["info"]}
+    metadata = {"model": str(path), "algo": "dsac", "encoder": encoder.name, **payload["info"]}
     return DSACPolicy(actor, world, name, metadata), world

@@ -20,30 +20,31 @@ import copy
 import math
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from crowdplan.config import check_fields, spec
 from crowdplan.nets.encoders import Encoder, EncoderConfig, make_encoder
 from crowdplan.nets.heads import PolicyHead, QHead
 
 
 @dataclass
 class DSACConfig:
-    """DSAC hyper-parameters (defaults: SPEC section 5 / the LSA-DSAC paper).
+    """DSAC hyper-parameters (defaults: SPEC section 5 / the LSA-DSAC paper); YAML section ``dsac``.
 
     Attributes:
         gamma: discount per environment step.
         lr: Adam learning rate of the critic, the policy and the temperature.
-        batch_size: transitions per update (used by the training loop when sampling).
+        batch_size: transitions per update.
         tau: Polyak coefficient of the target critic, ``target <- (1 - tau) target + tau critic``.
         target_entropy_scale: target entropy = scale * log(n_actions).
         init_alpha: initial temperature.
         autotune_alpha: learn log(alpha) towards the target entropy; False keeps ``init_alpha``.
         n_actions: size of the discrete action set (SPEC: 81).
-        updates_per_step: gradient updates per environment step (UTD ratio; used by the loop).
+        updates_per_step: gradient updates per environment transition (UTD ratio).
         parallel_update: run the critic half and the policy half of every update on two threads
             (for two free cores); the results are bitwise the same as on one thread.
         share_encoder: the policy reuses the critic's encoder (relation network / LSTM) instead of
@@ -51,21 +52,33 @@ class DSACConfig:
             policy sees its features detached (as in SAC-AE / DrQ). Default: separate encoders.
         q_hidden: hidden sizes of each of the twin Q heads.
         policy_hidden: hidden sizes of the policy head.
+        random_steps: transitions collected with uniform random actions before the policy acts.
+        learning_starts: transitions in the replay buffer before the first update.
+        buffer_size: replay capacity in transitions.
     """
 
-    gamma: float = 0.95
-    lr: float = 3e-4
-    batch_size: int = 128
-    tau: float = 0.005
+    gamma: float = spec(0.95, low=0.0, high=1.0)
+    lr: float = spec(3e-4, low=0.0, low_open=True)
+    batch_size: int = spec(128, low=1)
+    tau: float = spec(0.005, low=0.0, high=1.0)
     target_entropy_scale: float = 0.98
-    init_alpha: float = 0.2
+    init_alpha: float = spec(0.2, low=0.0, low_open=True)
     autotune_alpha: bool = True
-    n_actions: int = 81
-    updates_per_step: float = 1.0
+    n_actions: int = spec(81, low=2)
+    updates_per_step: float = spec(1.0, low=0.0, low_open=True)
     parallel_update: bool = False
     share_encoder: bool = False
     q_hidden: tuple[int, ...] = (128, 128)
     policy_hidden: tuple[int, ...] = (128, 128)
+    random_steps: int = spec(2000, low=0)
+    learning_starts: int = spec(1000, low=1)
+    buffer_size: int = spec(200_000, low=1)
+
+    # may change when a run resumes: bitwise the same training either way
+    RESUME_MUTABLE: ClassVar[tuple[str, ...]] = ("parallel_update",)
+
+    def __post_init__(self) -> None:
+        check_fields(self, "dsac")
 
 
 class SoftQNetwork(nn.Module):

@@ -36,6 +36,8 @@ import torch
 from torch import Tensor, nn
 from torch.nn.utils.rnn import pack_padded_sequence
 
+from crowdplan.config import check_fields
+
 ROBOT_DIM = 6
 HUMAN_DIM = 7
 PAIR_DIM = ROBOT_DIM + HUMAN_DIM
@@ -85,6 +87,7 @@ class EncoderConfig:
     rg_lstm_hidden: int = 32
 
     def __post_init__(self) -> None:
+        check_fields(self, "encoder")
         _check_choice("encoder name", self.name, ENCODER_NAMES)
         _check_choice("rg_pooling", self.rg_pooling, RG_POOLINGS)
         _check_choice("lstm_order", self.lstm_order, LSTM_ORDERS)
@@ -128,10 +131,19 @@ def order_humans(humans: Tensor, mask: Tensor, order: str, padding_first: bool =
     if order == "index":
         # stable sort on "is padding" keeps the input order among the real humans
         is_last = mask if padding_first else ~mask
-        return torch.sort(is_last.to(torch.int8), dim=1, stable=True).indices
+        return _stable_argsort(is_last.to(torch.int8), descending=False)
     descending = order == "distance_desc"
     pad_key = float("inf") if descending == padding_first else float("-inf")
     key = humans[..., DIST_COL].masked_fill(~mask, pad_key)
+    return _stable_argsort(key, descending)
+
+
+def _stable_argsort(key: Tensor, descending: bool) -> Tensor:
+    """Stable argsort along dim 1."""
+    if torch.compiler.is_exporting():
+        # ONNX has no stable sort, but its TopK breaks ties by lower index first
+        key = key.to(torch.float32)
+        return torch.topk(key, key.shape[1], dim=1, largest=descending, sorted=True).indices
     return torch.sort(key, dim=1, descending=descending, stable=True).indices
 
 
@@ -141,13 +153,15 @@ def _gather_rows(x: Tensor, index: Tensor) -> Tensor:
     return x.gather(1, index.unsqueeze(-1).expand(-1, -1, x.shape[-1]))
 
 
-def lstm_last_hidden(lstm: nn.LSTM, seq: Tensor, lengths: Tensor, all_full: bool) -> Tensor:
+def lstm_last_hidden(lstm: nn.LSTM, seq: Tensor, lengths: Tensor) -> Tensor:
     """Last hidden state of ``lstm`` over ``seq`` (B, T, D) whose first ``lengths[b]`` steps are
-    valid. Rows of length 0 give zeros. ``all_full`` (every length == T) skips the packing."""
+    valid. Rows of length 0 give zeros."""
+    if torch.compiler.is_exporting():
+        return _lstm_last_hidden_unpacked(lstm, seq, lengths)
     batch, steps = seq.shape[0], seq.shape[1]
     if steps == 0:
         return seq.new_zeros(batch, lstm.hidden_size)
-    if all_full:
+    if bool((lengths == steps).all()):
         _, (h_n, _) = lstm(seq)
         return h_n[-1]
     # pack so that the LSTM stops at each row's last real element: padding never enters the state
@@ -156,6 +170,16 @@ def lstm_last_hidden(lstm: nn.LSTM, seq: Tensor, lengths: Tensor, all_full: bool
     )
     _, (h_n, _) = lstm(packed)
     return torch.where((lengths > 0).unsqueeze(-1), h_n[-1], 0.0)
+
+
+def _lstm_last_hidden_unpacked(lstm: nn.LSTM, seq: Tensor, lengths: Tensor) -> Tensor:
+    """The same as :func:`lstm_last_hidden` without branching on the data or the sequence length
+    (for graph export): the LSTM is causal, so its output at step ``lengths[b] - 1`` is the state
+    after the last real element. One zero step is appended so that T = 0 still runs."""
+    seq = torch.cat([seq, seq.new_zeros(seq.shape[0], 1, seq.shape[2])], dim=1)
+    out, _ = lstm(seq)
+    last = (lengths - 1).clamp(min=0).view(-1, 1, 1).expand(-1, 1, out.shape[2])
+    return torch.where((lengths > 0).unsqueeze(-1), out.gather(1, last).squeeze(1), 0.0)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -198,11 +222,9 @@ class RawEncoder(Encoder):
         humans = _zero_padding(humans, mask)
         index = order_humans(humans, mask, self.order, padding_first=True)  # right-aligned
         ordered = _gather_rows(humans, index)
-        if n >= self.max_humans:
-            slots = ordered[:, n - self.max_humans :]
-        else:
-            empty = ordered.new_zeros(batch, self.max_humans - n, HUMAN_DIM)
-            slots = torch.cat([empty, ordered], dim=1)
+        # always pad, then keep the last max_humans slots: no branch on N (graph export)
+        empty = ordered.new_zeros(batch, self.max_humans, HUMAN_DIM)
+        slots = torch.cat([empty, ordered], dim=1)[:, n:]
         return self.net(torch.cat([robot, slots.reshape(batch, -1)], dim=1)), None
 
 
@@ -244,7 +266,7 @@ class AttentionEncoder(Encoder):
         weighted = attention.unsqueeze(-1) * h
         if self.lstm is None:
             return torch.cat([robot, weighted.sum(dim=1)], dim=1), attention
-        s_o = lstm_last_hidden(self.lstm, weighted, mask.sum(dim=1), bool(mask.all()))
+        s_o = lstm_last_hidden(self.lstm, weighted, mask.sum(dim=1))
         attention = torch.empty_like(attention).scatter_(1, index, attention)
         return torch.cat([robot, s_o], dim=1), attention
 
@@ -330,11 +352,11 @@ class RelationalGraphEncoder(Encoder):
         if p == "rob":
             return h_rob
         if self.lstm is not None:  # h_obs is already in LSTM order, real humans first
-            lengths, all_full = mask.sum(dim=1), bool(mask.all())
+            lengths = mask.sum(dim=1)
             if p == "lstm(rob+obs)":
                 seq = torch.cat([h_rob.unsqueeze(1), h_obs], dim=1)
-                return lstm_last_hidden(self.lstm, seq, lengths + 1, all_full)
-            return torch.cat([h_rob, lstm_last_hidden(self.lstm, h_obs, lengths, all_full)], 1)
+                return lstm_last_hidden(self.lstm, seq, lengths + 1)
+            return torch.cat([h_rob, lstm_last_hidden(self.lstm, h_obs, lengths)], 1)
         maskf = mask.unsqueeze(-1).to(h_obs.dtype)
         if p == "sum(rob+obs)":
             return h_rob + (h_obs * maskf).sum(dim=1)

@@ -1,0 +1,122 @@
+"""DSAC as a training-loop agent: replay buffer, random warm-up, update-to-data schedule.
+
+The maths of an update is in :mod:`crowdplan.algos.dsac`; this module only feeds it.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+
+from crowdplan.algos.base import Observation, Transitions
+from crowdplan.algos.buffer import ReplayBuffer
+from crowdplan.algos.dsac import DSAC
+from crowdplan.features import Features, robot_centric
+from crowdplan.models import DSACPolicy, model_payload
+
+if TYPE_CHECKING:
+    from crowdplan.training.config import TrainConfig
+
+
+def observation_features(obs: Observation, unicycle: bool) -> Features:
+    """Robot-centric features of a raw batched observation."""
+    return robot_centric(obs["robot"], obs["humans"], obs["mask"].astype(bool), unicycle)
+
+
+class DSACAgent:
+    """Off-policy DSAC: uniform random actions for the first ``random_steps`` transitions, then
+    samples of the policy; ``updates_per_step`` updates per transition once the buffer holds
+    ``learning_starts`` of them (fractional ratios carry their remainder to the next step)."""
+
+    def __init__(self, config: TrainConfig, device: torch.device):
+        self.config = config
+        self.params = config.algo_config
+        self.device = device
+        self.core = DSAC(self.params, config.encoder, seed=config.seed, device=device)
+        self.buffer = ReplayBuffer(
+            self.params.buffer_size, config.world.humans, seed=config.seed + 1
+        )
+        self.rng = np.random.default_rng(config.seed + 2)
+        self.generator = torch.Generator(device=device).manual_seed(config.seed + 3)
+        self.unicycle = config.world.kinematics == "unicycle"
+        self.env_steps = 0
+        self.update_credit = 0.0
+        self._features: Features | None = None  # of the observation the last act() saw
+
+    def pretrain(self, log: Any) -> None:
+        """DSAC learns from its own experience only."""
+        return None
+
+    def act(self, obs: Observation, world: Any) -> np.ndarray:
+        self._features = feats = observation_features(obs, self.unicycle)
+        num_envs = len(feats.robot)
+        if self.env_steps < self.params.random_steps:
+            return self.rng.integers(0, self.params.n_actions, size=num_envs)
+        inputs = (torch.from_numpy(x).to(self.device) for x in feats)
+        actions, _ = self.core.act(*inputs, generator=self.generator)
+        return actions.cpu().numpy()
+
+    def observe(self, step: Transitions) -> None:
+        feats = self._features
+        if feats is None:
+            feats = observation_features(step.obs, self.unicycle)
+        next_feats = observation_features(step.next_obs, self.unicycle)
+        self.buffer.add_batch(
+            feats.robot,
+            feats.humans,
+            feats.mask,
+            step.actions,
+            step.rewards.astype(np.float32),
+            next_feats.robot,
+            next_feats.humans,
+            next_feats.mask,
+            step.terminated.astype(np.float32),
+        )
+        self._features = None
+        self.env_steps += len(step.actions)
+        if len(self.buffer) >= self.params.learning_starts:
+            self.update_credit += len(step.actions) * self.params.updates_per_step
+
+    def update(self) -> dict[str, float] | None:
+        stats = None
+        while self.update_credit >= 1.0:
+            batch = self.buffer.sample(self.params.batch_size, self.device)
+            stats = self.core.update(batch)
+            self.update_credit -= 1.0
+        return stats
+
+    def episodes_done(self, episodes: int) -> None:
+        """DSAC has no per-episode schedule."""
+
+    @property
+    def n_updates(self) -> int:
+        """Gradient updates so far."""
+        return self.core.n_updates
+
+    def policy(self, name: str) -> DSACPolicy:
+        return DSACPolicy(self.core.actor, self.config.world, name)
+
+    def model_payload(self, info: dict[str, Any]) -> dict[str, Any]:
+        return model_payload(
+            self.core.actor, self.config.encoder, self.params, self.config.world, info
+        )
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "dsac": self.core.state_dict(),
+            "buffer": self.buffer.state_dict(),
+            "rng": self.rng.bit_generator.state,
+            "generator": self.generator.get_state(),
+            "env_steps": self.env_steps,
+            "update_credit": self.update_credit,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.core.load_state_dict(state["dsac"])
+        self.buffer.load_state_dict(state["buffer"])
+        self.rng.bit_generator.state = state["rng"]
+        self.generator.set_state(state["generator"])
+        self.env_steps = int(state["env_steps"])
+        self.update_credit = float(state["update_credit"])

@@ -1,0 +1,66 @@
+"""``crowdplan train``: a fresh run from a YAML config, or ``--resume`` of a run folder."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+import yaml
+
+from crowdplan import evaluation
+from crowdplan.io import atomic_write
+from crowdplan.training.config import TrainConfig, config_from_dict, load_config
+from crowdplan.training.loop import Trainer
+
+
+def _new_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
+    if not args.config:
+        raise ValueError("--config is required for a new run (e.g. configs/lsa_dsac_ent05.yaml)")
+    config = load_config(args.config)
+    if args.seed is not None:
+        config = dataclasses.replace(config, seed=args.seed)
+    if args.humans is not None:
+        config = dataclasses.replace(config, world=config.world.replace(humans=args.humans))
+    run_dir = Path(args.out or f"runs/{config.name}-s{config.seed}")
+    if (run_dir / "checkpoint.pt").exists():
+        raise ValueError(f"{run_dir} already holds a run; use --resume or another --out")
+    return config, run_dir
+
+
+def _resumed_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
+    if not args.out:
+        raise ValueError("--resume needs --out pointing at the run folder to continue")
+    run_dir = Path(args.out)
+    return load_config(run_dir / "config.yaml"), run_dir
+
+
+def train_from_cli(args: argparse.Namespace) -> int:
+    """Run ``crowdplan train``; returns the exit status (130 when stopped by a signal)."""
+    config, run_dir = _resumed_run_config(args) if args.resume else _new_run_config(args)
+    overrides = {"episodes": args.episodes, "val_interval": args.val_interval}
+    config = dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
+    if args.parallel_update is not None:
+        params = dataclasses.replace(config.algo_config, parallel_update=args.parallel_update)
+        config = dataclasses.replace(config, algo_config=params)
+    config = config_from_dict(config.to_dict())  # the same checks as a YAML file gets
+    trainer = Trainer(config, run_dir, progress=not args.no_progress)
+    if args.resume:
+        trainer.restore(run_dir / "checkpoint.pt")
+        print(f"resuming {run_dir} at episode {len(trainer.episodes)}")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    atomic_write(
+        run_dir / "config.yaml", lambda f: yaml.safe_dump(config.to_dict(), f, sort_keys=False)
+    )
+    if not trainer.run():
+        print(
+            f"stopped at episode {len(trainer.episodes)}; checkpoint written. "
+            f"Continue with: crowdplan train --out {run_dir} --resume"
+        )
+        return 130
+    summary = trainer.test() if config.test_episodes else None
+    trainer.write_logs()
+    if summary:
+        title = f"{config.name} (seed {config.seed}), best model, {config.test_episodes} test cases"
+        print(evaluation.format_table(summary, title))
+    return 0

@@ -1,0 +1,117 @@
+"""The training-run configuration and its strict YAML loader."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from crowdplan.algos.registry import ALGORITHMS, get_algorithm
+from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
+from crowdplan.nets.encoders import EncoderConfig
+
+# Keys that lived at the top level before they moved into the DSAC section; configs and
+# checkpoints of runs made then still load.
+_MOVED_TO_DSAC = ("random_steps", "learning_starts", "buffer_size")
+
+
+@dataclass
+class TrainConfig:
+    """A training run. YAML: these keys at top level, plus the sections ``world``, ``encoder``
+    and one named after the algorithm (e.g. ``dsac``) holding its hyper-parameters.
+
+    Attributes:
+        name: run name, used for the default run folder runs/<name>-s<seed>.
+        algo: the learning algorithm (``crowdplan.algos.registry``), e.g. ``dsac``.
+        seed: seeds network initialisation, exploration and replay sampling (the training
+            episodes themselves are always seeds 2000, 2001, ... as SPEC.md section 1 fixes).
+        episodes: training episodes.
+        num_envs: environments stepped together; each env step is one transition per env.
+        val_interval: episodes between validations on the validation cases.
+        val_episodes: validation cases per validation (the validation split has 100).
+        checkpoint_interval: episodes between checkpoints.
+        log_interval: episodes between progress lines and update-statistics rows.
+        test_episodes: test cases evaluated at the end (0 skips the final test).
+        torch_threads: torch intra-op threads (1 is fastest for these small networks).
+        device: where the networks train, "cpu" or a CUDA device such as "cuda" (optional).
+        world: the training world.
+        encoder: the representation learner of algorithms that take one.
+        algo_config: the algorithm's hyper-parameters (YAML section named after ``algo``).
+    """
+
+    name: str = "lsa_dsac"
+    algo: str = "dsac"
+    seed: int = spec(0, low=0)
+    episodes: int = spec(10000, low=1)
+    num_envs: int = spec(8, low=1)
+    val_interval: int = spec(500, low=1)
+    val_episodes: int = spec(100, low=1, high=100)
+    checkpoint_interval: int = spec(250, low=1)
+    log_interval: int = spec(50, low=1)
+    test_episodes: int = spec(500, low=0, high=500)
+    torch_threads: int = spec(1, low=1)
+    device: str = "cpu"
+    world: WorldConfig = field(default_factory=WorldConfig)
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
+    algo_config: Any = None
+
+    def __post_init__(self) -> None:
+        algo = get_algorithm(self.algo)
+        if self.algo_config is None:
+            self.algo_config = algo.config_class()
+        check_fields(self, "")
+        if not isinstance(self.algo_config, algo.config_class):
+            raise ValueError(
+                f"algo_config of a {self.algo} run must be a {algo.config_class.__name__}, "
+                f"got {type(self.algo_config).__name__}"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data for YAML: the algorithm's section under its own name."""
+        data = to_dict(self)
+        params = data.pop("algo_config")
+        data[self.algo] = {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()}
+        return data
+
+
+def config_from_dict(data: Any) -> TrainConfig:
+    """Build and validate a TrainConfig from parsed YAML (every field type- and range-checked)."""
+    if not isinstance(data, dict):
+        raise ValueError("a training config must be a YAML mapping of keys to values")
+    data = dict(data)
+    algo = get_algorithm(data.get("algo", "dsac"))
+    foreign = sorted(k for k in ALGORITHMS if k != algo.name and k in data)
+    if foreign:
+        raise ValueError(
+            f"section(s) {foreign} belong to another algorithm; this config trains "
+            f"{algo.name!r} (set algo: {foreign[0]} to train that one)"
+        )
+    section = dict(data.pop(algo.name, None) or {})
+    if algo.name == "dsac":
+        for key in _MOVED_TO_DSAC:
+            if key in data:
+                section.setdefault(key, data.pop(key))
+    params = from_dict(algo.config_class, section, algo.name)
+    config = from_dict(TrainConfig, data, "top level")
+    config.algo_config = params
+    if config.encoder.name == "raw":
+        config.encoder = dataclasses.replace(config.encoder, max_humans=config.world.humans)
+    return config
+
+
+def load_config(path: str | Path) -> TrainConfig:
+    """Read a YAML training config, with errors that name the file and the problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"config file {path} does not exist (see configs/*.yaml)")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        raise ValueError(f"config file {path} is not valid YAML: {error}") from error
+    try:
+        return config_from_dict(data)
+    except (ValueError, TypeError) as error:
+        raise ValueError(f"config file {path}: {error}") from error
