@@ -25,13 +25,38 @@ def _new_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
     run_dir = Path(args.out or f"runs/{config.name}-s{config.seed}")
     if (run_dir / "checkpoint.pt").exists():
         raise ValueError(f"{run_dir} already holds a run; use --resume or another --out")
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ValueError(f"--out {run_dir} is a file; give a folder for the run")
+    if run_dir.is_dir() and any(run_dir.iterdir()):
+        found = ", ".join(sorted(p.name for p in run_dir.iterdir())[:5])
+        raise ValueError(
+            f"--out {run_dir} already holds files that are not a crowdplan run ({found}); "
+            "give a new or empty folder so that the run's files are not mixed with them"
+        )
     return config, run_dir
 
 
 def _resumed_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
     if not args.out:
         raise ValueError("--resume needs --out pointing at the run folder to continue")
+    fixed = [
+        flag
+        for flag, value in (
+            ("--config", args.config),
+            ("--seed", args.seed),
+            ("--humans", args.humans),
+        )
+        if value is not None
+    ]
+    if fixed:
+        raise ValueError(
+            f"--resume continues the run in {args.out} with its own config.yaml, so "
+            f"{' and '.join(fixed)} cannot apply; only --episodes, --val-interval and "
+            "--[no-]parallel-update may change on resume (start a new --out to change the rest)"
+        )
     run_dir = Path(args.out)
+    if not (run_dir / "checkpoint.pt").is_file():
+        raise FileNotFoundError(f"{run_dir} holds no checkpoint.pt to resume from")
     return load_config(run_dir / "config.yaml"), run_dir
 
 
@@ -47,7 +72,13 @@ def train_from_cli(args: argparse.Namespace) -> int:
     trainer = Trainer(config, run_dir, progress=not args.no_progress)
     if args.resume:
         trainer.restore(run_dir / "checkpoint.pt")
-        print(f"resuming {run_dir} at episode {len(trainer.episodes)}")
+        done = len(trainer.episodes)
+        if config.episodes < done:
+            raise ValueError(
+                f"{run_dir} has already trained {done} episodes; --episodes must be at least "
+                f"that (the budget to train up to, not a number of further episodes)"
+            )
+        print(f"resuming {run_dir} at episode {done}")
     run_dir.mkdir(parents=True, exist_ok=True)
     atomic_write(
         run_dir / "config.yaml", lambda f: yaml.safe_dump(config.to_dict(), f, sort_keys=False)

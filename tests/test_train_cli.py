@@ -1,0 +1,76 @@
+"""``crowdplan train``: what --resume and --out refuse, and that config.yaml and meta.json agree."""
+
+import json
+
+import pytest
+import yaml
+
+from crowdplan.cli import main
+
+TINY = {
+    "name": "tiny",
+    "episodes": 2,
+    "num_envs": 2,
+    "val_interval": 2,
+    "val_episodes": 2,
+    "checkpoint_interval": 2,
+    "log_interval": 2,
+    "test_episodes": 0,
+    "world": {"humans": 2, "time_limit": 2.0},
+    "encoder": {"name": "aw"},
+    "dsac": {"batch_size": 8, "random_steps": 8, "learning_starts": 8},
+}
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("train")
+    config = root / "tiny.yaml"
+    config.write_text(yaml.safe_dump(TINY))
+    run = root / "run"
+    assert main(["train", "--config", str(config), "--out", str(run), "--no-progress"]) == 0
+    return config, run
+
+
+@pytest.mark.parametrize(
+    ("extra", "fragment"),
+    [
+        (["--seed", "3"], "--seed cannot apply"),
+        (["--humans", "4"], "--humans cannot apply"),
+        (["--config", "configs/lsa_dsac.yaml"], "--config cannot apply"),
+        (["--episodes", "1"], "already trained 2 episodes; --episodes must be at least"),
+    ],
+)
+def test_resume_refuses_what_it_cannot_honour(finished_run, extra, fragment, capsys):
+    _, run = finished_run
+    before = (run / "config.yaml").read_text()
+    assert main(["train", "--out", str(run), "--resume", *extra]) == 2
+    assert fragment in capsys.readouterr().err
+    assert (run / "config.yaml").read_text() == before  # nothing rewritten
+
+
+def test_resume_with_a_larger_budget_keeps_config_and_meta_consistent(finished_run, tmp_path):
+    config, run = finished_run
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    for item in run.iterdir():
+        if item.is_file():
+            (copy / item.name).write_bytes(item.read_bytes())
+    assert main(["train", "--out", str(copy), "--resume", "--episodes", "4", "--no-progress"]) == 0
+    meta = json.loads((copy / "meta.json").read_text())
+    resolved = yaml.safe_load((copy / "config.yaml").read_text())
+    assert resolved["episodes"] == meta["episodes_budget"] == 4
+    assert meta["episodes"] >= 4
+
+
+def test_new_run_refuses_a_folder_with_unrelated_files(finished_run, tmp_path, capsys):
+    config, _ = finished_run
+    (tmp_path / "notes.txt").write_text("mine")
+    assert main(["train", "--config", str(config), "--out", str(tmp_path)]) == 2
+    assert "not a crowdplan run (notes.txt)" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+def test_resume_without_checkpoint_is_explained(tmp_path, capsys):
+    assert main(["train", "--out", str(tmp_path), "--resume"]) == 2
+    assert "holds no checkpoint.pt" in capsys.readouterr().err
