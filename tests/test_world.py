@@ -100,11 +100,14 @@ def test_reward_priorities_and_values():
     np.testing.assert_allclose(reward, [-0.25, 1.0, 0.5 * 6 / 8, -0.1 + 0.05, 0.0, 0.0])
 
 
-def test_goal_and_timeout():
-    world = World(WorldConfig(humans=0))
+@pytest.mark.parametrize(
+    ("frame", "straight"),
+    [("world", 1 + 4 * 5 + 4), ("goal", 1 + 0 * 5 + 4)],  # pi/2 absolute / 0 from the goal
+)
+def test_goal_and_timeout(frame, straight):
+    world = World(WorldConfig(humans=0, action_frame=frame))
     world.reset([0])
-    straight_up = 1 + 4 * 5 + 4  # direction k = 4 (pi/2), speed 1.0
-    outcomes = [world.step(np.array([straight_up])).outcome[0] for _ in range(31)]
+    outcomes = [world.step(np.array([straight])).outcome[0] for _ in range(31)]
     assert outcomes[-1] == GOAL and all(o == RUNNING for o in outcomes[:-1])
     world.reset([0])
     for _ in range(99):

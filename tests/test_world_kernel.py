@@ -9,6 +9,7 @@ import pytest
 
 from crowdplan.config import WorldConfig
 from crowdplan.sim import orca
+from crowdplan.sim.actions import action_velocities
 from crowdplan.sim.orca import orca_velocities, preferred_velocities
 from crowdplan.sim.world import (
     COLLISION,
@@ -35,16 +36,24 @@ def reference_step(world: World, actions: np.ndarray, active: np.ndarray | None)
     # Robot velocity and heading.
     actions = np.asarray(actions)
     if actions.dtype.kind in "iu":
-        speed_angle = world.actions[actions]
-    elif unicycle:
-        speed_angle = actions
+        robot = world.observe()[0]
+        robot_vel, theta = action_velocities(
+            np.broadcast_to(actions, (e,)),
+            robot,
+            cfg.kinematics,
+            cfg.action_frame,
+            cfg.speed_sampling,
+        )
     else:
-        speed = np.minimum(np.hypot(actions[:, 0], actions[:, 1]), cfg.robot_v_pref)
-        speed_angle = np.stack([speed, np.arctan2(actions[:, 1], actions[:, 0])], axis=1)
-    speed, angle = speed_angle[:, 0], speed_angle[:, 1]
-    theta = world.robot_theta + angle if unicycle else world.robot_theta
-    heading = theta if unicycle else angle
-    robot_vel = np.stack([speed * np.cos(heading), speed * np.sin(heading)], axis=1)
+        if unicycle:
+            speed_angle = actions
+        else:
+            speed = np.minimum(np.hypot(actions[:, 0], actions[:, 1]), cfg.robot_v_pref)
+            speed_angle = np.stack([speed, np.arctan2(actions[:, 1], actions[:, 0])], axis=1)
+        speed, angle = speed_angle[:, 0], speed_angle[:, 1]
+        theta = world.robot_theta + angle if unicycle else world.robot_theta
+        heading = theta if unicycle else angle
+        robot_vel = np.stack([speed * np.cos(heading), speed * np.sin(heading)], axis=1)
 
     # Humans: one ORCA solve per environment; a visible robot is agent 0, never solved.
     pos, vel = world.human_pos, world.human_vel
@@ -181,6 +190,8 @@ CONFIGS = {
     "randomized": WorldConfig(humans=5, randomize_attributes=True, visible_robot=True),
     "respawn": WorldConfig(humans=5, respawn_on_arrival=True),
     "square": WorldConfig(scenario="square_crossing", humans=10),
+    "world-frame": WorldConfig(humans=5, action_frame="world"),
+    "rotated-goal": WorldConfig(humans=5, random_goal_direction=True),
     "few-neighbours": WorldConfig(humans=10).replace(orca={"max_neighbors": 3}),
 }
 

@@ -1,7 +1,14 @@
 """Scenario generators: seed -> initial state of one episode (SPEC.md section 1).
 
+The scenario protocol: a scenario is any function ``(WorldConfig, seed) -> InitialState``; the
+world plays an ``InitialState`` with ``World.reset_states`` (``World.reset`` plays the seeds of
+the configured scenario). Built in: circle_crossing, square_crossing, replay (recorded ETH/UCY
+pedestrians, ``sim/replay.py``) and custom (a YAML file, ``sim/scenario_file.py``).
+
 Each episode is a pure function of (config, seed): all draws come from
-``np.random.default_rng(seed)``, in a fixed order, never from a global RNG.
+``np.random.default_rng(seed)``, in a fixed order, never from a global RNG. The options added
+after the paper's setting (crowd size range, kinds of humans, scene rotation, replay mixture)
+draw from their own streams ``default_rng([seed, k])``, so the paper's cases are unchanged.
 
 Rejection rule (as CrowdNav): a human is redrawn when it is closer than
 ``r_h + r_other + 0.2`` to an already placed agent (the robot included). circle_crossing tests the
@@ -12,13 +19,19 @@ others' goals.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from crowdplan.config import WorldConfig
 
 PLACEMENT_MARGIN = 0.2
+
+# Kinds of humans (codes of ``InitialState.human_kind``).
+ORCA, SOCIAL_FORCE, STATIC, WAITING, REPLAY = 0, 1, 2, 3, 4
+HUMAN_KINDS = ("orca", "social_force", "static", "waiting", "replay")
+# Independent random streams of one episode: default_rng([seed, stream]).
+_STREAM_COUNT, _STREAM_KINDS, _STREAM_ROTATION, _STREAM_REPLAY_MIX = 1, 2, 3, 4
 
 
 class PlacementError(ValueError):
@@ -27,15 +40,64 @@ class PlacementError(ValueError):
 
 @dataclass
 class InitialState:
-    """Initial state of one episode; the generator is kept for later draws (respawn on arrival)."""
+    """Initial state of one episode (the scenario protocol's value).
 
-    robot_pos: np.ndarray  # (2,)
-    robot_goal: np.ndarray  # (2,)
-    human_pos: np.ndarray  # (N, 2)
-    human_goal: np.ndarray  # (N, 2)
-    human_radius: np.ndarray  # (N,)
-    human_v_pref: np.ndarray  # (N,)
-    rng: np.random.Generator
+    ``N`` may be smaller than ``WorldConfig.humans``: the world pads with absent humans. The
+    generator is kept for later draws (respawn on arrival).
+
+    Attributes:
+        robot_pos, robot_goal: (2,) robot start and goal.
+        human_pos, human_goal: (N, 2) human starts and goals (a standing human's goal is its
+            start).
+        human_radius, human_v_pref: (N,) radii and preferred speeds.
+        rng: the episode's generator.
+        robot_theta: initial heading; None = towards the goal.
+        human_kind: (N,) codes of ``HUMAN_KINDS``; None = all ORCA.
+        human_wait: (N, 2) [start, end) in seconds of a waiting human's stop; None = never.
+        human_vel: (N, 2) initial velocities; None = standing.
+        track: (N, T + 1, 2) recorded positions of replayed humans at every step (T = max_steps);
+            track_present: (N, T + 1) whether each is in the scene at that step.
+        rotation: angle (rad) the scene was rotated by about the origin (respawn uses it).
+    """
+
+    robot_pos: np.ndarray
+    robot_goal: np.ndarray
+    human_pos: np.ndarray
+    human_goal: np.ndarray
+    human_radius: np.ndarray
+    human_v_pref: np.ndarray
+    rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+    robot_theta: float | None = None
+    human_kind: np.ndarray | None = None
+    human_wait: np.ndarray | None = None
+    human_vel: np.ndarray | None = None
+    track: np.ndarray | None = None
+    track_present: np.ndarray | None = None
+    rotation: float = 0.0
+
+    @property
+    def humans(self) -> int:
+        """Number of humans N of this scene."""
+        return len(self.human_pos)
+
+    def kinds(self) -> np.ndarray:
+        """(N,) kind codes, ORCA where unset."""
+        if self.human_kind is None:
+            return np.full(self.humans, ORCA, dtype=np.int64)
+        return np.asarray(self.human_kind, dtype=np.int64)
+
+    def waits(self) -> np.ndarray:
+        """(N, 2) stop windows in seconds, [inf, inf] where unset."""
+        if self.human_wait is None:
+            return np.full((self.humans, 2), np.inf)
+        return np.asarray(self.human_wait, dtype=np.float64)
+
+    def heading(self) -> float:
+        """Initial robot heading: ``robot_theta`` or the direction to the goal."""
+        if self.robot_theta is not None:
+            return float(self.robot_theta)
+        dx, dy = self.robot_goal - self.robot_pos
+        return float(np.arctan2(dy, dx))
 
 
 def check_seed(seed: object) -> int:
@@ -48,9 +110,56 @@ def check_seed(seed: object) -> int:
 
 
 def generate(config: WorldConfig, seed: int) -> InitialState:
-    """Draw the initial state of the episode with this seed."""
-    rng = np.random.default_rng(check_seed(seed))
+    """The initial state of the episode with this seed in the configured scenario."""
+    seed = check_seed(seed)
+    if config.scenario == "custom":
+        from crowdplan.sim.scenario_file import scene_for_seed
+
+        state = scene_for_seed(config, seed)
+    elif config.scenario == "replay" or (
+        config.replay_fraction > 0
+        and np.random.default_rng([seed, _STREAM_REPLAY_MIX]).random() < config.replay_fraction
+    ):
+        from crowdplan.sim.replay import replay_case
+
+        state = replay_case(config, seed)
+    else:
+        state = _crossing(config, seed)
+    angle = np.deg2rad(config.goal_rotation)
+    if config.random_goal_direction:
+        angle += np.random.default_rng([seed, _STREAM_ROTATION]).uniform(0.0, 2 * np.pi)
+    return rotate(state, angle) if angle else state
+
+
+def rotate(state: InitialState, angle: float) -> InitialState:
+    """The same scene rotated by ``angle`` (rad) about the origin."""
+    cos, sin = np.cos(angle), np.sin(angle)
+    rot = np.array([[cos, -sin], [sin, cos]])
+
+    def turn(points):
+        return None if points is None else np.asarray(points) @ rot.T
+
+    return replace(
+        state,
+        robot_pos=turn(state.robot_pos),
+        robot_goal=turn(state.robot_goal),
+        human_pos=turn(state.human_pos),
+        human_goal=turn(state.human_goal),
+        human_vel=turn(state.human_vel),
+        track=turn(state.track),
+        robot_theta=None if state.robot_theta is None else state.robot_theta + angle,
+        rotation=state.rotation + angle,
+    )
+
+
+def _crossing(config: WorldConfig, seed: int) -> InitialState:
+    """circle_crossing or square_crossing, with the crowd-size and kind options."""
+    rng = np.random.default_rng(seed)
     n = config.humans
+    if config.humans_min is not None:
+        n = int(
+            np.random.default_rng([seed, _STREAM_COUNT]).integers(config.humans_min, n + 1)
+        )
     robot_pos = np.array([0.0, -config.circle_radius])
     robot_goal = np.array([0.0, config.circle_radius])
     starts = [robot_pos]
@@ -70,15 +179,38 @@ def generate(config: WorldConfig, seed: int) -> InitialState:
         starts.append(start)
         goals.append(goal)
         radii.append(human_radius[i])
+    human_pos = np.array(starts[1:]).reshape(n, 2)
+    human_goal = np.array(goals[1:]).reshape(n, 2)
+    kinds, waits = _draw_kinds(config, seed, n)
+    human_goal[kinds == STATIC] = human_pos[kinds == STATIC]
     return InitialState(
         robot_pos=robot_pos,
         robot_goal=robot_goal,
-        human_pos=np.array(starts[1:]).reshape(n, 2),
-        human_goal=np.array(goals[1:]).reshape(n, 2),
+        human_pos=human_pos,
+        human_goal=human_goal,
         human_radius=human_radius,
         human_v_pref=human_v_pref,
         rng=rng,
+        human_kind=kinds,
+        human_wait=waits,
     )
+
+
+def _draw_kinds(config: WorldConfig, seed: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Kinds of n generated humans from the configured fractions, and their stop windows."""
+    kinds = np.full(n, ORCA, dtype=np.int64)
+    fractions = (config.social_force_fraction, config.static_fraction, config.waiting_fraction)
+    if any(fractions):
+        draw = np.random.default_rng([seed, _STREAM_KINDS]).random(n)
+        edges = np.cumsum(fractions)
+        kinds = np.select(
+            [draw < edges[0], draw < edges[1], draw < edges[2]],
+            [SOCIAL_FORCE, STATIC, WAITING],
+            ORCA,
+        ).astype(np.int64)
+    waits = np.full((n, 2), np.inf)
+    waits[kinds == WAITING] = [config.wait_after, config.wait_after + config.wait_for]
+    return kinds, waits
 
 
 def _too_close(point: np.ndarray, others: list[np.ndarray], radius: float, radii: list) -> bool:
@@ -124,17 +256,28 @@ def _place_square(config, rng, radius, v_pref, starts, goals, radii, index):
 
 
 def respawn_goal(
-    config: WorldConfig, rng: np.random.Generator, position: np.ndarray, v_pref: float
+    config: WorldConfig,
+    rng: np.random.Generator,
+    position: np.ndarray,
+    v_pref: float,
+    rotation: float = 0.0,
 ) -> np.ndarray:
     """A new goal for a human that arrived (the "respawn on arrival" option).
 
-    circle_crossing: a fresh noisy point on the circle; square_crossing: a point on the side
-    opposite to the human's current side.
+    circle_crossing (and the scenarios without a crossing of their own): a fresh noisy point on
+    the circle; square_crossing: a point on the side opposite to the human's current side. Drawn
+    in the unrotated scene, then turned by the scene's ``rotation``.
     """
-    if config.scenario == "circle_crossing":
+    cos, sin = np.cos(rotation), np.sin(rotation)
+    if config.scenario != "square_crossing":
         angle = rng.random() * 2 * np.pi
         noise = (rng.random(2) - 0.5) * v_pref
-        return config.circle_radius * np.array([np.cos(angle), np.sin(angle)]) + noise
-    side = -1.0 if position[0] > 0 else 1.0
-    width = config.square_width
-    return np.array([rng.random() * width * 0.5 * side, (rng.random() - 0.5) * width])
+        goal = config.circle_radius * np.array([np.cos(angle), np.sin(angle)]) + noise
+    else:
+        unrotated_x = position[0] * cos + position[1] * sin
+        side = -1.0 if unrotated_x > 0 else 1.0
+        width = config.square_width
+        goal = np.array([rng.random() * width * 0.5 * side, (rng.random() - 0.5) * width])
+    if not rotation:
+        return goal
+    return np.array([goal[0] * cos - goal[1] * sin, goal[0] * sin + goal[1] * cos])
