@@ -37,7 +37,8 @@ def test_eval_writes_summary_and_episodes(tmp_path, capsys):
         "mean_reward",
         "path_length",
     ):
-        assert "value" in summary[key] and len(summary[key]["ci95"]) == 2
+        ci = summary[key]["ci95"]
+        assert "value" in summary[key] and (ci is None or len(ci) == 2)
     lines = (tmp_path / "episodes.jsonl").read_text().splitlines()
     assert [json.loads(x)["seed"] for x in lines] == [1000, 1001, 1002, 1003]
     assert "success" in capsys.readouterr().out

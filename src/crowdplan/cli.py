@@ -1,95 +1,161 @@
-"""The ``crowdplan`` command: eval, render, train."""
+"""The ``crowdplan`` command: eval, render, train, report (docs/cli.md).
+
+Exit status: 0 done, 1 failed while running (e.g. a disk error), 2 bad input (refused before any
+work), 130 interrupted (Ctrl-C), 141 output pipe closed (``crowdplan eval | head``).
+"""
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
 
+from crowdplan import __version__
 from crowdplan.config import SCENARIOS
+
+EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 1, 2, 130, 141
+RESULT_FILES = ("summary.json", "episodes.jsonl")
+SPLIT_HELP = "test: cases 0..499 = seeds 1000..1499; val: cases 0..99 = seeds 0..99"
 
 
 def _add_world_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scenario", default="circle_crossing", choices=SCENARIOS)
-    parser.add_argument("--humans", type=int, default=None, help="number of humans (default 5)")
+    parser.add_argument(
+        "--scenario",
+        default=None,
+        choices=SCENARIOS,
+        help="crowd scenario (default: the model's training scenario, else circle_crossing)",
+    )
+    parser.add_argument(
+        "--humans",
+        type=int,
+        default=None,
+        help="number of humans, >= 0 (default: the model's training world, else 5)",
+    )
     parser.add_argument(
         "--option",
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="world option, e.g. visible_robot=true, kinematics=unicycle (repeatable)",
+        help="world option, repeatable, e.g. visible_robot=true, kinematics=unicycle; keys and "
+        "ranges: crowdplan.config.WorldConfig (default: the model's training world, else the "
+        "WorldConfig defaults)",
     )
 
 
 def _add_policy_args(parser: argparse.ArgumentParser) -> None:
     group = parser.add_mutually_exclusive_group()
-    group.add_argument("--policy", default=None, help="built-in planner: orca")
     group.add_argument(
-        "--model", default=None, help="trained model: a run folder, checkpoint or shipped name"
+        "--policy", default=None, help="built-in planner: orca (default: orca unless --model)"
+    )
+    group.add_argument(
+        "--model",
+        default=None,
+        help="trained model: a model file (model.pt, best_model.pt, final_model.pt), a run "
+        "folder (its best_model.pt) or a shipped model name, e.g. lsa-dsac (default: none)",
     )
 
 
-def _world_config(args: argparse.Namespace, policy, base):
-    """The model's (or default) world with the command line's scenario, humans and options."""
-    from crowdplan.policies import check_compatible, parse_options
+def _add_output_args(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument(
+        "--force", action="store_true", help=f"replace {what} that already exist(s) in --out"
+    )
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress display")
 
-    changes = {"scenario": args.scenario, **parse_options(args.option)}
+
+def _warn(command: str, message: str) -> None:
+    print(f"crowdplan {command}: warning: {message}", file=sys.stderr)
+
+
+def _world_config(args: argparse.Namespace, policy, base):
+    """The model's (or default) world with the command line's scenario, humans and options;
+    warns once per option that differs from the world a trained model was trained in."""
+    from crowdplan.policies import check_compatible, parse_options, world_differences
+
+    changes = parse_options(args.option, own_flags=("scenario", "humans"))
+    if args.scenario is not None:
+        changes["scenario"] = args.scenario
     if args.humans is not None:
         changes["humans"] = args.humans
     config = base.replace(**changes)
     check_compatible(policy, config)
+    for key, (trained, now) in world_differences(policy, config).items():
+        _warn(
+            args.command,
+            f"model {policy.name} was trained with {key}={trained}, this world has {key}={now}",
+        )
     return config
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
     from crowdplan import evaluation
+    from crowdplan.io import check_output_folder
     from crowdplan.policies import load_policy, run_metadata
+    from crowdplan.progress import Progress
 
-    policy, base = load_policy(args.policy, args.model)
-    config = _world_config(args, policy, base)
-    if args.episodes < 1:
+    if args.episodes is not None and args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    seeds = evaluation.SPLITS[args.split].seeds(args.episodes)
     if args.batch_size < 1:
         raise ValueError(f"--batch-size must be >= 1, got {args.batch_size}")
-    seeds = (
-        evaluation.validation_seeds(args.episodes)
-        if args.split == "val"
-        else evaluation.test_seeds(args.episodes)
-    )
+    if args.out:
+        check_output_folder(args.out, RESULT_FILES, args.force)
+    policy, base = load_policy(args.policy, args.model)
+    config = _world_config(args, policy, base)
+
+    records: list = []
+
+    def report_batch(batch: list) -> None:
+        records.extend(batch)
+        progress.update(
+            len(batch),
+            success=sum(r.outcome == "goal" for r in records) / len(records),
+            reward=sum(r.discounted_return for r in records) / len(records),
+        )
+
     start = time.perf_counter()
-    records = evaluation.run_episodes(policy, config, seeds, batch_size=args.batch_size)
+    with Progress(len(seeds), f"eval {policy.name}", quiet=args.quiet) as progress:
+        evaluation.run_episodes(
+            policy, config, seeds, batch_size=args.batch_size, on_batch=report_batch
+        )
     elapsed = time.perf_counter() - start
-    summary = evaluation.summarize(records)
+    summary = evaluation.summarize(records, config)
+    if args.out:
+        meta = run_metadata(policy, config, seeds, args.split)
+        meta["wall_seconds"] = elapsed
+        evaluation.write_results(args.out, summary, records, meta)
+        note = f"wrote {Path(args.out) / 'summary.json'} and {Path(args.out) / 'episodes.jsonl'}"
+    else:
+        note = "nothing written (no --out): pass --out DIR to keep summary.json and episodes.jsonl"
     title = (
         f"{policy.name} on {config.scenario}, {config.humans} humans, "
         f"{len(seeds)} {args.split} cases"
     )
     print(evaluation.format_table(summary, title))
-    if args.out:
-        meta = run_metadata(policy, config, seeds, args.split)
-        meta["wall_seconds"] = elapsed
-        evaluation.write_results(args.out, summary, records, meta)
-        print(f"wrote {Path(args.out) / 'summary.json'} and episodes.jsonl")
+    sys.stdout.flush()  # a closed pipe shows here, after the results were written
+    print(note, file=sys.stderr)
     return 0
 
 
 def cmd_render(args: argparse.Namespace) -> int:
     from crowdplan import evaluation
+    from crowdplan.io import check_output_file
     from crowdplan.policies import load_policy
-    from crowdplan.sim.render import save_render
+    from crowdplan.sim.render import RENDER_SUFFIXES, save_render
 
-    policy, base = load_policy(args.policy, args.model)
-    config = _world_config(args, policy, base)
     if args.case < 0:
         raise ValueError(f"--case must be >= 0, got {args.case}")
-    seed = (
-        evaluation.VAL_SEED_BASE if args.split == "val" else evaluation.TEST_SEED_BASE
-    ) + args.case
+    seed = evaluation.SPLITS[args.split].seed(args.case)
+    check_output_file(args.out, args.force, RENDER_SUFFIXES)
+    policy, base = load_policy(args.policy, args.model)
+    config = _world_config(args, policy, base)
     (record,) = evaluation.run_episodes(policy, config, [seed], record_traces=True)
     title = f"{policy.name}, {args.split} case {args.case}: {record.outcome} at {record.time:.2f} s"
     save_render(record.trace, args.out, title=title)
-    print(f"{title}\nwrote {args.out}")
+    print(title)
+    sys.stdout.flush()
+    print(f"wrote {args.out}", file=sys.stderr)
     return 0
 
 
@@ -115,44 +181,92 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="crowdplan", description="Robot navigation among dense crowds."
+        prog="crowdplan",
+        description="Robot navigation among dense crowds.",
+        epilog="exit status: 0 done, 1 failed while running, 2 bad input (nothing was run), "
+        "130 interrupted, 141 output pipe closed. More: docs/cli.md",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("eval", help="evaluate a planner on the fixed test (or validation) cases")
     _add_policy_args(p)
     _add_world_args(p)
-    p.add_argument("--episodes", type=int, default=500)
-    p.add_argument("--split", choices=("test", "val"), default="test")
-    p.add_argument("--batch-size", type=int, default=100, help="environments stepped together")
-    p.add_argument("--out", default=None, help="folder for summary.json and episodes.jsonl")
+    p.add_argument(
+        "--episodes",
+        type=int,
+        default=None,
+        help="how many cases, the split's first: 1..500 (test) or 1..100 (val) "
+        "(default: the whole split)",
+    )
+    p.add_argument(
+        "--split", choices=("test", "val"), default="test", help=f"{SPLIT_HELP} (default: test)"
+    )
+    p.add_argument(
+        "--batch-size",
+        type=int,
+        default=100,
+        help="environments stepped together, >= 1; results do not depend on it "
+        "(default: %(default)s)",
+    )
+    p.add_argument(
+        "--out",
+        default=None,
+        help="folder for summary.json and episodes.jsonl, made if missing "
+        "(default: none, only the table is printed)",
+    )
+    _add_output_args(p, "summary.json and episodes.jsonl")
     p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("render", help="draw one episode to a .gif or .png")
     _add_policy_args(p)
     _add_world_args(p)
-    p.add_argument("--case", type=int, default=0, help="test case k (seed 1000 + k)")
-    p.add_argument("--split", choices=("test", "val"), default="test")
-    p.add_argument("--out", required=True, help="output file, .gif or .png")
+    p.add_argument(
+        "--case",
+        type=int,
+        default=0,
+        help="case k of the split: 0..499 (test, seed 1000 + k) or 0..99 (val, seed k) "
+        "(default: %(default)s)",
+    )
+    p.add_argument(
+        "--split", choices=("test", "val"), default="test", help=f"{SPLIT_HELP} (default: test)"
+    )
+    p.add_argument(
+        "--out", required=True, help="file to write: .gif (animation) or .png (whole episode)"
+    )
+    _add_output_args(p, "the --out file")
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("train", help="train a DSAC planner from a YAML config")
     p.add_argument("--config", help="YAML config, e.g. configs/lsa_dsac.yaml")
-    p.add_argument("--seed", type=int, default=None)
-    p.add_argument("--humans", type=int, default=None)
-    p.add_argument("--episodes", type=int, default=None)
+    p.add_argument(
+        "--seed", type=int, default=None, help="training seed (default: the config's seed)"
+    )
+    p.add_argument(
+        "--humans",
+        type=int,
+        default=None,
+        help="number of humans, >= 0 (default: the config's world.humans)",
+    )
+    p.add_argument(
+        "--episodes",
+        type=int,
+        default=None,
+        help="episode budget, >= 1 (default: the config's episodes)",
+    )
     p.add_argument(
         "--val-interval",
         type=int,
         default=None,
-        help="episodes between validations (may change on --resume)",
+        help="episodes between validations, >= 1; may change on --resume "
+        "(default: the config's val_interval)",
     )
     p.add_argument(
         "--parallel-update",
         action=argparse.BooleanOptionalAction,
         default=None,
         help="critic and policy halves of each update on two threads (bitwise the same results; "
-        "may change on --resume)",
+        "may change on --resume) (default: the config's dsac.parallel_update)",
     )
     p.add_argument("--out", default=None, help="run folder (default runs/<name>-s<seed>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
@@ -167,20 +281,43 @@ def build_parser() -> argparse.ArgumentParser:
         help="regenerate the '<!-- crowdplan report DIR ... -->' blocks of a markdown file",
     )
     p.set_defaults(func=cmd_report)
+
+    from crowdplan.deploy.cli import add_commands as add_deploy_commands
+
+    add_deploy_commands(sub)
     return parser
 
 
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so that flushing at exit cannot raise again on a closed pipe."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # stdout without a file descriptor (e.g. captured in tests)
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``crowdplan`` console script."""
+    """Entry point of the ``crowdplan`` console script; returns the exit status."""
+    args = build_parser().parse_args(argv)
     import torch
 
     torch.set_num_threads(1)
-    args = build_parser().parse_args(argv)
+    prog = f"crowdplan {args.command}"
     try:
         return args.func(args)
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        _silence_stdout()
+        return EXIT_BROKEN_PIPE
     except (ValueError, TypeError, FileNotFoundError) as error:
-        print(f"crowdplan {args.command}: error: {error}", file=sys.stderr)
-        return 2
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as error:
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        return EXIT_FAILED
 
 
 if __name__ == "__main__":

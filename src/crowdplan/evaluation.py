@@ -7,6 +7,7 @@ is frozen until the whole batch is done. The same seeds give identical records.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -23,14 +24,50 @@ REPORT_GAMMA = 0.95  # discount of the "mean reward" metric: 0.95^(t * dt * v_pr
 Z95 = 1.959963984540054
 
 
+@dataclass(frozen=True)
+class Split:
+    """A fixed set of evaluation cases: case k is the episode of seed ``seed_base + k``."""
+
+    name: str
+    seed_base: int
+    cases: int
+
+    def seed(self, case: int) -> int:
+        """Seed of case ``case``; refuses cases outside the split."""
+        if not 0 <= case < self.cases:
+            raise ValueError(
+                f"the {self.name} split has cases 0..{self.cases - 1} "
+                f"(seeds {self.seed_base}..{self.seed_base + self.cases - 1}), got case {case}"
+            )
+        return self.seed_base + case
+
+    def seeds(self, episodes: int | None = None) -> list[int]:
+        """Seeds of the first ``episodes`` cases (all of them by default)."""
+        episodes = self.cases if episodes is None else episodes
+        if not 1 <= episodes <= self.cases:
+            raise ValueError(
+                f"the {self.name} split has {self.cases} cases "
+                f"(seeds {self.seed_base}..{self.seed_base + self.cases - 1}); "
+                f"episodes must be in 1..{self.cases}, got {episodes}"
+            )
+        return list(range(self.seed_base, self.seed_base + episodes))
+
+
+# Training draws seeds from 2000 on (sim.env), so the two splits never meet training episodes.
+SPLITS = {
+    "test": Split("test", TEST_SEED_BASE, TEST_CASES),
+    "val": Split("val", VAL_SEED_BASE, VAL_CASES),
+}
+
+
 def test_seeds(episodes: int = TEST_CASES) -> list[int]:
-    """Seeds of the first ``episodes`` test cases (case k -> seed 1000 + k)."""
-    return list(range(TEST_SEED_BASE, TEST_SEED_BASE + episodes))
+    """Seeds of the first ``episodes`` test cases (case k -> seed 1000 + k, k < 500)."""
+    return SPLITS["test"].seeds(episodes)
 
 
 def validation_seeds(episodes: int = VAL_CASES) -> list[int]:
-    """Seeds of the validation cases (case k -> seed k)."""
-    return list(range(VAL_SEED_BASE, VAL_SEED_BASE + episodes))
+    """Seeds of the validation cases (case k -> seed k, k < 100)."""
+    return SPLITS["val"].seeds(episodes)
 
 
 @dataclass
@@ -79,12 +116,19 @@ def run_episodes(
     seeds: list[int],
     batch_size: int = 100,
     record_traces: bool = False,
+    on_batch: Callable[[list[EpisodeRecord]], None] | None = None,
 ) -> list[EpisodeRecord]:
-    """Run one episode per seed with ``policy``; returns records in seed order."""
+    """Run one episode per seed with ``policy``; returns records in seed order.
+
+    ``on_batch`` is called with the records of each finished batch (for progress reports).
+    """
     records: list[EpisodeRecord] = []
     for start in range(0, len(seeds), batch_size):
         chunk = seeds[start : start + batch_size]
-        records.extend(_run_batch(policy, config, chunk, record_traces))
+        batch = _run_batch(policy, config, chunk, record_traces)
+        records.extend(batch)
+        if on_batch is not None:
+            on_batch(batch)
     return records
 
 
@@ -191,20 +235,33 @@ def wilson_interval(successes: int, n: int) -> list[float]:
     return [max(0.0, centre - half), min(1.0, centre + half)]
 
 
-def mean_interval(values: np.ndarray) -> tuple[float, list[float]]:
-    """Mean and its 95% normal-approximation interval (nan when empty)."""
+def mean_interval(
+    values: np.ndarray, bounds: tuple[float, float] = (-math.inf, math.inf)
+) -> tuple[float, list[float] | None]:
+    """Mean and its 95% normal-approximation interval, clipped to the metric's ``bounds``.
+
+    The mean is nan without values; the interval is None with fewer than two (no spread to
+    estimate it from).
+    """
     values = np.asarray(values, dtype=float)
     if values.size == 0:
-        return math.nan, [math.nan, math.nan]
+        return math.nan, None
     mean = float(values.mean())
     if values.size == 1:
-        return mean, [mean, mean]
+        return mean, None
     half = Z95 * float(values.std(ddof=1)) / math.sqrt(values.size)
-    return mean, [mean - half, mean + half]
+    return mean, [max(bounds[0], mean - half), min(bounds[1], mean + half)]
 
 
-def summarize(records: list[EpisodeRecord]) -> dict[str, dict]:
-    """Every metric as {"value": v, "ci95": [lo, hi]} (definitions: docs/metrics.md)."""
+def summarize(records: list[EpisodeRecord], config: WorldConfig | None = None) -> dict[str, dict]:
+    """Every metric as {"value": v, "ci95": [lo, hi]} (definitions: docs/metrics.md).
+
+    A metric without samples has value nan (null in JSON, "n/a" in tables) and ci95 None; a mean
+    over one sample has ci95 None. Intervals stay within the metric's range; ``config`` (the world
+    evaluated) adds the bounds that depend on it: time limit and discomfort distance.
+    """
+    time_limit = config.time_limit if config else math.inf
+    discomfort_dist = config.discomfort_dist if config else math.inf
     n = len(records)
     outcomes = [r.outcome for r in records]
     counts = {name: outcomes.count(name) for name in ("goal", "collision", "timeout")}
@@ -213,10 +270,12 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, dict]:
     discomfort_steps = sum(r.discomfort_steps for r in records)
 
     def rate(k: int, total: int) -> dict:
-        return {"value": k / total if total else math.nan, "ci95": wilson_interval(k, total)}
+        if not total:
+            return {"value": math.nan, "ci95": None}
+        return {"value": k / total, "ci95": wilson_interval(k, total)}
 
-    def mean(values) -> dict:
-        value, ci = mean_interval(np.asarray(values, dtype=float))
+    def mean(values, lo: float = -math.inf, hi: float = math.inf) -> dict:
+        value, ci = mean_interval(np.asarray(values, dtype=float), (lo, hi))
         return {"value": value, "ci95": ci}
 
     # Mean distance pools the discomfort steps of all episodes; its CI treats steps as samples.
@@ -236,19 +295,19 @@ def summarize(records: list[EpisodeRecord]) -> dict[str, dict]:
         "success_rate": rate(counts["goal"], n),
         "collision_rate": rate(counts["collision"], n),
         "timeout_rate": rate(counts["timeout"], n),
-        "time_to_goal": mean([r.time for r in successes]),
+        "time_to_goal": mean([r.time for r in successes], 0.0, time_limit),
         "mean_distance": {
             "value": (sum(r.discomfort_distance_sum for r in records) / discomfort_steps)
             if discomfort_steps
             else math.nan,
-            "ci95": mean_interval(discomfort_d)[1],
+            "ci95": mean_interval(discomfort_d, (0.0, discomfort_dist))[1],
         },
         "discomfort_frequency": rate(discomfort_steps, total_steps),
         "mean_reward": mean([r.discounted_return for r in records]),
-        "path_length": mean([r.path_length for r in successes]),
-        "spl": mean([r.spl for r in records]),
+        "path_length": mean([r.path_length for r in successes], 0.0),
+        "spl": mean([r.spl for r in records], 0.0, 1.0),
         "min_distance": mean([r.min_distance for r in records if math.isfinite(r.min_distance)]),
-        "jerk": mean([r.jerk for r in records]),
+        "jerk": mean([r.jerk for r in records], 0.0),
     }
     return summary
 
@@ -267,14 +326,31 @@ METRIC_ROWS = [
 ]
 
 
+MISSING = "n/a"  # how tables print a metric without samples (null in JSON)
+
+
+def format_value(value: float | None, digits: int = 3) -> str:
+    """A metric value with ``digits`` decimals; "n/a" when missing (None or nan)."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return MISSING
+    return f"{value:.{digits}f}"
+
+
+def format_interval(ci: list | None, digits: int = 3) -> str:
+    """ "[lo, hi]", or "" when the metric has no interval (missing, or a single sample)."""
+    if not ci or ci[0] is None or math.isnan(ci[0]):
+        return ""
+    return f"[{format_value(ci[0], digits)}, {format_value(ci[1], digits)}]"
+
+
 def format_table(summary: dict[str, dict], title: str = "") -> str:
     """Plain-text metrics table with 95% intervals."""
     lines = [title] if title else []
     lines.append(f"{'metric':<20} {'value':>8}   95% CI")
     for key, label in METRIC_ROWS:
         entry = summary[key]
-        lo, hi = entry["ci95"]
-        lines.append(f"{label:<20} {entry['value']:>8.3f}   [{lo:.3f}, {hi:.3f}]")
+        row = f"{label:<20} {format_value(entry['value']):>8}   {format_interval(entry['ci95'])}"
+        lines.append(row.rstrip())
     return "\n".join(lines)
 
 

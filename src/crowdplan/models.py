@@ -115,20 +115,29 @@ def resolve_model_path(spec: str) -> Path:
 _CHECKPOINT_FORMAT = re.compile(rb"crowdplan-[\w-]+-checkpoint/\d+")
 
 
+def _is_archive(path: Path) -> bool:
+    """Whether ``path`` starts like a zip archive (what torch.save writes), intact or not."""
+    with open(path, "rb") as file:
+        return file.read(4) == b"PK\x03\x04"
+
+
 def _not_a_model(path: Path) -> str:
     """Why ``path`` cannot be a model file, for files that torch cannot load as plain data."""
     expected = (
         f"--model takes a model file written by crowdplan train ({', '.join(MODEL_FILES)}), "
         f"a run folder or a shipped model name ({', '.join(shipped_models()) or 'none shipped'})"
     )
-    if not zipfile.is_zipfile(path):
+    if not _is_archive(path):
         kind = {".yaml": "a YAML file", ".yml": "a YAML file", ".json": "a JSON file"}.get(
             path.suffix.lower(), "not a torch archive"
         )
         return f"{path} is {kind}, not a model file; {expected}"
-    with zipfile.ZipFile(path) as archive:
-        pickles = [n for n in archive.namelist() if n.endswith("data.pkl")]
-        data = archive.read(pickles[0]) if pickles else b""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            pickles = [n for n in archive.namelist() if n.endswith("data.pkl")]
+            data = archive.read(pickles[0]) if pickles else b""
+    except zipfile.BadZipFile:
+        data = b""
     if _CHECKPOINT_FORMAT.search(data):
         return (
             f"{path} is a training checkpoint (read by crowdplan train --resume), not a model "
@@ -142,9 +151,13 @@ def load_payload(path: Path) -> dict[str, Any]:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many types for damaged files
-        if not zipfile.is_zipfile(path) or "weights_only" in str(error):
+        if not _is_archive(path) or "weights_only" in str(error):
             raise ValueError(_not_a_model(path)) from None
         raise ValueError(f"cannot read model file {path}: {error}") from error
+    if isinstance(payload, dict) and _CHECKPOINT_FORMAT.fullmatch(
+        str(payload.get("format")).encode()
+    ):
+        raise ValueError(_not_a_model(path))
     if not isinstance(payload, dict) or "format" not in payload:
         raise ValueError(f"{path} is not a crowdplan model file (it has no 'format' entry)")
     return payload

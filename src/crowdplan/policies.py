@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -13,14 +14,26 @@ from crowdplan.policy import Policy
 BUILTIN_POLICIES = ("orca",)
 
 
-def parse_options(items: list[str]) -> dict:
-    """``["visible_robot=true", "kinematics=unicycle"]`` -> dict with YAML-typed values."""
+def parse_options(items: list[str], own_flags: tuple[str, ...] = ()) -> dict:
+    """``["visible_robot=true", "kinematics=unicycle"]`` -> dict with YAML-typed values.
+
+    Keys given twice, and keys listed in ``own_flags`` (set through their own command-line flag,
+    e.g. ``scenario``), are refused; the values' types and ranges are checked by ``WorldConfig``.
+    """
     options = {}
     for item in items:
         key, sep, value = item.partition("=")
+        key = key.strip()
         if not sep or not key:
             raise ValueError(f"world option {item!r} must look like KEY=VALUE")
-        options[key.strip()] = yaml.safe_load(value)
+        if key in own_flags:
+            raise ValueError(f"set {key} with --{key.replace('_', '-')}, not --option {item}")
+        if key in options:
+            raise ValueError(f"world option {key!r} given twice")
+        try:
+            options[key] = yaml.safe_load(value)
+        except yaml.YAMLError as error:
+            raise ValueError(f"world option {item!r}: cannot read the value ({error})") from None
     return options
 
 
@@ -51,9 +64,33 @@ def check_compatible(policy: Policy, config: WorldConfig) -> None:
         )
 
 
-def git_hash() -> str:
-    """Commit of the source tree, with '+dirty' when it has uncommitted changes."""
+def world_differences(policy: Policy, config: WorldConfig) -> dict[str, tuple[Any, Any]]:
+    """``{option: (trained, now)}`` for every world option where ``config`` differs from the
+    world a trained policy was trained in (nested options as ``orca.max_speed``); empty for
+    planners that carry no training world."""
+    trained = getattr(policy, "world", None)
+    if trained is None:
+        return {}
+    before, now = _flatten(to_dict(trained)), _flatten(to_dict(config))
+    return {key: (before[key], now.get(key)) for key in before if before[key] != now.get(key)}
+
+
+def _flatten(data: dict, prefix: str = "") -> dict:
+    flat = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def git_hash() -> str | None:
+    """Commit of the source tree, with '+dirty' when it has uncommitted changes; None when the
+    package is not run from a git checkout (an installed wheel)."""
     root = Path(__file__).resolve().parent
+    if not (root.parents[1] / "pyproject.toml").is_file():
+        return None  # installed: the directories above are not this project's
     try:
         head = subprocess.run(
             ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True
@@ -66,18 +103,34 @@ def git_hash() -> str:
             check=True,
         ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
-        return "unknown"
+        return None
     return head + ("+dirty" if dirty else "")
 
 
 def run_metadata(policy: Policy, config: WorldConfig, seeds: list[int], split: str) -> dict:
-    """What a result file must say about how it was produced."""
+    """What a result file must say about how it was produced.
+
+    ``eval_git`` is the commit that ran the evaluation; ``model_git`` (trained models only) the
+    commit the model's training run started with.
+    """
+    from crowdplan import __version__
+
+    info = dict(getattr(policy, "metadata", {}))
+    model_git = info.pop("git", None)
     meta = {
         "policy": policy.name,
         "split": split,
         "seeds": [seeds[0], seeds[-1]] if seeds else [],
         "world": to_dict(config),
-        "git": git_hash(),
+        "eval_git": git_hash(),
+        "crowdplan_version": __version__,
+        **info,
     }
-    meta.update(getattr(policy, "metadata", {}))
+    if model_git is not None:
+        meta["model_git"] = model_git
+    differences = world_differences(policy, config)
+    if differences:
+        meta["world_differs_from_training"] = {
+            key: {"trained": before, "evaluated": now} for key, (before, now) in differences.items()
+        }
     return meta
