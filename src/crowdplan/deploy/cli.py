@@ -1,0 +1,175 @@
+"""The ``crowdplan export``, ``crowdplan deploy`` and ``crowdplan ros2`` subcommands."""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+from crowdplan.deploy.manifest import MANIFEST_FILE
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """Register the deployment subcommands on the ``crowdplan`` parser."""
+    from crowdplan.cli import _add_world_args
+    from crowdplan.deploy.export import DEFAULT_MAX_HUMANS
+
+    p = sub.add_parser("export", help="write a trained model as ONNX + manifest for deployment")
+    p.add_argument("--model", required=True, help="run folder, model file or shipped name")
+    p.add_argument("--out", required=True, help="folder for policy.onnx and manifest.json")
+    p.add_argument(
+        "--max-humans",
+        type=int,
+        default=DEFAULT_MAX_HUMANS,
+        help=f"largest crowd the export is checked for (default {DEFAULT_MAX_HUMANS})",
+    )
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser(
+        "deploy", help="run the deployment runtime in closed loop against the simulator"
+    )
+    p.add_argument("--sim", action="store_true", help="the simulator stands in for the mocap")
+    p.add_argument("--model", required=True, help="export folder, or a model (exported on the fly)")
+    _add_world_args(p)
+    p.add_argument("--episodes", type=int, default=500)
+    p.add_argument("--split", choices=("test", "val"), default="test")
+    p.add_argument("--out", default=None, help="folder for summary.json and episodes.jsonl")
+    _add_runtime_args(p)
+    g = p.add_argument_group("sensor model")
+    g.add_argument("--position-noise", type=float, default=0.0, help="std of x, y noise (m)")
+    g.add_argument("--yaw-noise", type=float, default=0.0, help="std of yaw noise (rad)")
+    g.add_argument("--drift", type=float, default=0.0, help="random-walk drift (m / sqrt(s))")
+    g.add_argument("--latency", type=float, default=0.0, help="pose latency (s)")
+    g.add_argument("--drop-rate", type=float, default=0.0, help="share of samples lost")
+    g.add_argument("--noise-seed", type=int, default=0)
+    p.set_defaults(func=cmd_deploy)
+
+    from crowdplan.deploy.ros2 import add_ros2_args
+
+    p = sub.add_parser("ros2", help="ROS 2 node: mocap poses in, Twist commands out")
+    add_ros2_args(p)
+    _add_runtime_args(p)
+    p.set_defaults(func=cmd_ros2)
+
+
+def _add_runtime_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("runtime")
+    g.add_argument(
+        "--control-rate", type=float, default=None, help="Hz (default: 1 / the model's dt)"
+    )
+    g.add_argument("--max-pose-age", type=float, default=0.5, help="stale after this (s)")
+    g.add_argument("--max-jump-speed", type=float, default=5.0, help="faster is a jump (m/s)")
+    g.add_argument("--velocity-tau", type=float, default=0.0, help="velocity filter (s)")
+
+
+def runtime_config(args: argparse.Namespace, dt: float):
+    """The runtime settings of the command line (control rate default: the model's 1 / dt)."""
+    from crowdplan.deploy.runtime import RuntimeConfig
+
+    return RuntimeConfig(
+        control_rate=args.control_rate or 1.0 / dt,
+        max_pose_age=args.max_pose_age,
+        max_jump_speed=args.max_jump_speed,
+        velocity_tau=args.velocity_tau,
+    )
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from crowdplan.deploy.export import export_model, verify_export
+
+    manifest, path = export_model(args.model, args.out, args.max_humans)
+    print(
+        f"wrote {path} and {Path(args.out) / MANIFEST_FILE}: {manifest.encoder} encoder, "
+        f"{manifest.kinematics}, {manifest.action_frame}-frame actions, outputs "
+        f"{', '.join(manifest.outputs)}, up to {manifest.max_humans} humans"
+    )
+    for n, diff in verify_export(args.model, args.out).items():
+        print(f"onnxruntime vs torch, {n:>2} humans: max |logit difference| {diff:.2e}")
+    return 0
+
+
+def _export_folder(model: str, scratch: str) -> str:
+    """``model`` itself if it is an export folder, else a fresh export of it in ``scratch``."""
+    if (Path(model) / MANIFEST_FILE).is_file():
+        return model
+    from crowdplan.deploy.export import export_model
+
+    export_model(model, scratch)
+    return scratch
+
+
+def cmd_deploy(args: argparse.Namespace) -> int:
+    if not args.sim:
+        raise ValueError(
+            "only --sim runs here; real robots are driven by `crowdplan ros2` (docs/deploy.md)"
+        )
+    from crowdplan import evaluation
+    from crowdplan.cli import _world_config
+    from crowdplan.config import WorldConfig
+    from crowdplan.deploy.onnx_policy import OnnxPolicy
+    from crowdplan.deploy.simulate import (
+        SensorModel,
+        deployment_world,
+        run_deployment,
+        sensor_dict,
+    )
+    from crowdplan.policies import run_metadata
+
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    sensor = SensorModel(
+        position_noise=args.position_noise,
+        yaw_noise=args.yaw_noise,
+        drift=args.drift,
+        latency=args.latency,
+        drop_rate=args.drop_rate,
+        seed=args.noise_seed,
+    )
+    with tempfile.TemporaryDirectory() as scratch:
+        policy = OnnxPolicy(_export_folder(args.model, scratch))
+    base = WorldConfig.from_dict(policy.manifest.world)
+    config = deployment_world(_world_config(args, policy, base), args.control_rate)
+    seeds = (
+        evaluation.validation_seeds(args.episodes)
+        if args.split == "val"
+        else evaluation.test_seeds(args.episodes)
+    )
+    start = time.perf_counter()
+    records, stats = run_deployment(policy, config, seeds, sensor, runtime_config(args, config.dt))
+    elapsed = time.perf_counter() - start
+    summary = evaluation.summarize(records)
+    title = (
+        f"{policy.name} deployed in simulation on {config.scenario}, {config.humans} humans, "
+        f"{len(seeds)} {args.split} cases"
+    )
+    print(evaluation.format_table(summary, title))
+    print(f"{'safety stops':<20} {stats['safety_stop_share']:>8.3f}   (share of steps)")
+    if args.out:
+        meta = run_metadata(policy, config, seeds, args.split)
+        meta.update(
+            wall_seconds=elapsed,
+            deploy={
+                "sensor": sensor_dict(sensor),
+                "runtime": {
+                    "control_rate": 1.0 / config.dt,
+                    "max_pose_age": args.max_pose_age,
+                    "max_jump_speed": args.max_jump_speed,
+                    "velocity_tau": args.velocity_tau,
+                },
+                **stats,
+            },
+        )
+        evaluation.write_results(args.out, {**summary, **_stat_entries(stats)}, records, meta)
+        print(f"wrote {Path(args.out) / 'summary.json'} and episodes.jsonl")
+    return 0
+
+
+def _stat_entries(stats: dict[str, float]) -> dict[str, dict]:
+    return {key: {"value": value, "ci95": None} for key, value in stats.items()}
+
+
+def cmd_ros2(args: argparse.Namespace) -> int:
+    from crowdplan.deploy.ros2 import run_node
+
+    return run_node(args)

@@ -1,0 +1,234 @@
+"""Export a trained model to ONNX with a dynamic crowd size, plus its JSON manifest.
+
+Exporters are looked up by the type of the loaded policy (:func:`register_exporter`): DSAC
+policies export their actor (encoder + policy head); another model family (a value network)
+registers its own function that returns the module to export, its output names and its kind.
+The graph comes from ``torch.onnx.export(dynamo=True)`` with symbolic batch and crowd sizes; the
+encoders switch to branch-free code paths while exporting (``torch.compiler.is_exporting``).
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+import crowdplan
+from crowdplan.config import WorldConfig, to_dict
+from crowdplan.deploy.manifest import (
+    HUMAN_FEATURES,
+    INPUTS,
+    ONNX_FILE,
+    ROBOT_FEATURES,
+    Manifest,
+    file_sha256,
+    write_manifest,
+)
+from crowdplan.features import HUMAN_FEAT_DIM, ROBOT_FEAT_DIM, robot_centric
+from crowdplan.models import DSACPolicy, load_model_policy
+from crowdplan.sim.actions import action_table
+
+DEFAULT_MAX_HUMANS = 20
+OPSET = 18
+
+
+@dataclass
+class ExportSpec:
+    """What an exporter hands back: the module (robot, humans, mask) -> outputs, their names and
+    the manifest's ``kind``."""
+
+    module: nn.Module
+    outputs: tuple[str, ...]
+    kind: str
+
+
+_EXPORTERS: list[tuple[type, Callable[[object], ExportSpec]]] = []
+
+
+def register_exporter(policy_type: type) -> Callable:
+    """Decorator: ``fn(policy) -> ExportSpec`` exports policies of ``policy_type``."""
+
+    def wrap(fn: Callable[[object], ExportSpec]) -> Callable[[object], ExportSpec]:
+        _EXPORTERS.append((policy_type, fn))
+        return fn
+
+    return wrap
+
+
+@register_exporter(DSACPolicy)
+def _dsac_spec(policy: DSACPolicy) -> ExportSpec:
+    with torch.no_grad():
+        _, attention = policy.actor(*_sample_inputs(1, 1))
+    outputs = ("logits",) if attention is None else ("logits", "attention")
+    return ExportSpec(_NoneFree(policy.actor), outputs, "dsac-policy")
+
+
+class _NoneFree(nn.Module):
+    """Drops a ``None`` attention output (ONNX outputs are tensors)."""
+
+    def __init__(self, module: nn.Module):
+        super().__init__()
+        self.module = module
+
+    def forward(self, robot, humans, mask):
+        return tuple(x for x in self.module(robot, humans, mask) if x is not None)
+
+
+def _sample_inputs(batch: int, humans: int) -> tuple[torch.Tensor, ...]:
+    gen = torch.Generator().manual_seed(0)
+    return (
+        torch.randn(batch, ROBOT_FEAT_DIM, generator=gen),
+        torch.randn(batch, humans, HUMAN_FEAT_DIM, generator=gen),
+        torch.ones(batch, humans, dtype=torch.bool),
+    )
+
+
+def goal_heading(world: WorldConfig) -> float | None:
+    """Training goal direction of a world-frame model (None for goal-frame models).
+
+    The robot of every generated scenario travels from (0, -4) to (0, 4) (+y), turned by
+    ``goal_rotation``; a model trained with a random goal direction in the world frame cannot
+    know where its goal is and is refused.
+    """
+    if getattr(world, "action_frame", "world") != "world":
+        return None
+    if getattr(world, "random_goal_direction", False):
+        raise ValueError(
+            "this model was trained with world-frame actions and random goal directions: its "
+            "actions do not follow the goal, so it cannot be deployed"
+        )
+    return math.pi / 2 + math.radians(getattr(world, "goal_rotation", 0.0))
+
+
+def export_model(
+    model: str, out_dir: str | Path, max_humans: int = DEFAULT_MAX_HUMANS
+) -> tuple[Manifest, Path]:
+    """Export ``model`` (path, run folder or shipped name) to ``out_dir``/policy.onnx and
+    ``out_dir``/manifest.json; returns the manifest and the ONNX path."""
+    if max_humans < 1:
+        raise ValueError(f"max_humans must be >= 1, got {max_humans}")
+    policy, world = load_model_policy(model)
+    for policy_type, make_spec in _EXPORTERS:
+        if isinstance(policy, policy_type):
+            spec = make_spec(policy)
+            break
+    else:
+        raise ValueError(f"no ONNX exporter for {type(policy).__name__} models")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    onnx_path = out / ONNX_FILE
+    _export_onnx(spec, onnx_path, max_humans)
+    manifest = Manifest(
+        kind=spec.kind,
+        outputs=spec.outputs,
+        max_humans=max_humans,
+        encoder=str(policy.metadata.get("encoder", "")),
+        kinematics=world.kinematics,
+        speed_sampling=world.speed_sampling,
+        v_pref=world.robot_v_pref,
+        robot_radius=world.robot_radius,
+        dt=world.dt,
+        action_frame=getattr(world, "action_frame", "world"),
+        goal_heading=goal_heading(world),
+        action_table=action_table(
+            world.robot_v_pref, world.kinematics, world.speed_sampling
+        ).tolist(),
+        feature_layout={"robot": list(ROBOT_FEATURES), "human": list(HUMAN_FEATURES)},
+        world=to_dict(world),
+        source_model=str(policy.metadata.get("model", model)),
+        crowdplan_version=crowdplan.__version__,
+        onnx_sha256=file_sha256(onnx_path),
+    )
+    write_manifest(out, manifest)
+    return manifest, onnx_path
+
+
+def _export_onnx(spec: ExportSpec, path: Path, max_humans: int) -> None:
+    """One self-contained ONNX file with symbolic batch and crowd sizes."""
+    batch = torch.export.Dim("batch", min=1, max=4096)
+    humans = torch.export.Dim("humans", min=0, max=max(max_humans, 2))
+    module = spec.module.eval()
+    with tempfile.TemporaryDirectory() as tmp, torch.no_grad():
+        # the exporter may write external weight files beside its output: build in a scratch
+        # folder and keep only the single-file model
+        program = torch.onnx.export(
+            module,
+            _sample_inputs(2, min(5, max_humans) if max_humans >= 2 else 2),
+            dynamo=True,
+            input_names=list(INPUTS),
+            output_names=list(spec.outputs),
+            dynamic_shapes=({0: batch}, {0: batch, 1: humans}, {0: batch, 1: humans}),
+            opset_version=OPSET,
+            verbose=False,
+        )
+        scratch = Path(tmp) / ONNX_FILE
+        program.save(str(scratch), external_data=False)
+        path.write_bytes(scratch.read_bytes())
+
+
+AGREEMENT_CROWDS = (0, 1, 5, 10, 20)
+
+
+def random_observations(
+    rng: np.random.Generator, batch: int, humans: int, padding: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Random raw observations in a 10 m room: robot (B, 9), humans (B, N + padding, 5) and a
+    mask whose last ``padding`` slots are padding filled with garbage."""
+    robot = np.concatenate(
+        [
+            rng.uniform(-5, 5, (batch, 2)),
+            rng.uniform(-1, 1, (batch, 2)),
+            np.full((batch, 1), 0.3),
+            rng.uniform(-5, 5, (batch, 2)),
+            np.ones((batch, 1)),
+            rng.uniform(-np.pi, np.pi, (batch, 1)),
+        ],
+        axis=1,
+    )
+    total = humans + padding
+    crowd = np.concatenate(
+        [
+            rng.uniform(-5, 5, (batch, total, 2)),
+            rng.uniform(-1, 1, (batch, total, 2)),
+            rng.uniform(0.3, 0.5, (batch, total, 1)),
+        ],
+        axis=2,
+    )
+    mask = np.zeros((batch, total), dtype=bool)
+    mask[:, :humans] = True
+    crowd[:, humans:] = rng.normal(0, 100, (batch, padding, 5))
+    return robot, crowd, mask
+
+
+def verify_export(
+    model: str, export_dir: str | Path, crowds: tuple[int, ...] = AGREEMENT_CROWDS, batch: int = 64
+) -> dict[int, float]:
+    """Largest |logit difference| between onnxruntime and torch per crowd size, on random
+    observations (with padded slots where the export allows more humans)."""
+    from crowdplan.deploy.onnx_policy import OnnxPolicy
+
+    policy, _ = load_model_policy(model)
+    onnx_policy = OnnxPolicy(export_dir)
+    rng = np.random.default_rng(0)
+    result = {}
+    for n in crowds:
+        padding = min(3, onnx_policy.max_humans - n)
+        if padding < 0:
+            continue
+        robot, humans, mask = random_observations(rng, batch, n, padding)
+        feats = robot_centric(robot, humans, mask, policy.unicycle)
+        with torch.no_grad():
+            logits, _ = policy.actor(*(torch.from_numpy(x) for x in feats))
+        result[n] = max_abs_difference(onnx_policy.logits(robot, humans, mask), logits.numpy())
+    return result
+
+
+def max_abs_difference(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest absolute difference (0 for empty arrays)."""
+    return float(np.max(np.abs(np.asarray(a) - np.asarray(b)), initial=0.0))
