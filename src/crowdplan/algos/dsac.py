@@ -55,6 +55,10 @@ class DSACConfig:
         random_steps: transitions collected with uniform random actions before the policy acts.
         learning_starts: transitions in the replay buffer before the first update.
         buffer_size: replay capacity in transitions.
+        init_model: a DSAC model file (or shipped model name) whose policy initialises the
+            actor (fine-tuning); it must have the same encoder and action frame as the run.
+        actor_warmup_updates: updates during which only the critic learns (policy and
+            temperature frozen), so that a fresh critic does not undo an initialised policy.
     """
 
     gamma: float = spec(0.95, low=0.0, high=1.0)
@@ -73,6 +77,8 @@ class DSACConfig:
     random_steps: int = spec(2000, low=0)
     learning_starts: int = spec(1000, low=1)
     buffer_size: int = spec(200_000, low=1)
+    init_model: str | None = None
+    actor_warmup_updates: int = spec(0, low=0)
 
     # may change when a run resumes: bitwise the same training either way
     RESUME_MUTABLE: ClassVar[tuple[str, ...]] = ("parallel_update",)
@@ -325,6 +331,8 @@ class DSAC:
 
         entropy = -(action_probs.detach() * log_pi.detach()).sum(dim=1)
         alpha_loss = (self.log_alpha * (entropy - self.target_entropy)).mean()
+        if self.n_updates < self.config.actor_warmup_updates:
+            return actor_loss.detach(), alpha_loss.detach(), entropy.mean()
         (actor_loss + (alpha_loss if self.config.autotune_alpha else 0.0)).backward()
         self.actor_optimizer.step()
         return actor_loss.detach(), alpha_loss.detach(), entropy.mean()

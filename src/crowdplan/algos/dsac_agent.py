@@ -14,7 +14,7 @@ from crowdplan.algos.base import Observation, Transitions
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.dsac import DSAC
 from crowdplan.features import Features, robot_centric
-from crowdplan.models import DSACPolicy, model_payload
+from crowdplan.models import MODEL_FORMAT, DSACPolicy, model_payload
 
 if TYPE_CHECKING:
     from crowdplan.training.config import TrainConfig
@@ -23,6 +23,29 @@ if TYPE_CHECKING:
 def observation_features(obs: Observation, unicycle: bool) -> Features:
     """Robot-centric features of a raw batched observation."""
     return robot_centric(obs["robot"], obs["humans"], obs["mask"].astype(bool), unicycle)
+
+
+def initial_actor_state(config: TrainConfig) -> dict[str, torch.Tensor]:
+    """The policy weights of ``config.algo_config.init_model``, checked against the run."""
+    from crowdplan.config import to_dict
+    from crowdplan.models import load_payload, resolve_model_path
+
+    path = resolve_model_path(config.algo_config.init_model)
+    payload = load_payload(path)
+    if payload["format"] != MODEL_FORMAT:
+        raise ValueError(f"dsac.init_model {path} is not a DSAC model file")
+    if payload["encoder"] != to_dict(config.encoder):
+        raise ValueError(
+            f"dsac.init_model {path} has encoder {payload['encoder']}, the run "
+            f"{to_dict(config.encoder)}; use the model's encoder section"
+        )
+    frame = payload["world"].get("action_frame", "world")
+    if frame != config.world.action_frame:
+        raise ValueError(
+            f"dsac.init_model {path} acts in the {frame} frame, the run in the "
+            f"{config.world.action_frame} frame (see crowdplan.algos.action_frames)"
+        )
+    return payload["actor"]
 
 
 class DSACAgent:
@@ -35,6 +58,8 @@ class DSACAgent:
         self.params = config.algo_config
         self.device = device
         self.core = DSAC(self.params, config.encoder, seed=config.seed, device=device)
+        if self.params.init_model is not None:
+            self.core.actor.load_state_dict(initial_actor_state(config))
         self.buffer = ReplayBuffer(
             self.params.buffer_size, config.world.humans, seed=config.seed + 1
         )
