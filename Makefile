@@ -16,8 +16,8 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 demo: setup
-	$(BIN)/crowdplan eval --model lsa-dsac --episodes 500 --out $(DEMO)/lsa-dsac-circle
-	$(BIN)/crowdplan render --model lsa-dsac --case 0 --out $(DEMO)/lsa-dsac-case0.gif
+	$(BIN)/crowdplan eval --model lsa-dsac --episodes 500 --out $(DEMO)/lsa-dsac-circle --force
+	$(BIN)/crowdplan render --model lsa-dsac --case 0 --out $(DEMO)/lsa-dsac-case0.gif --force
 
 test: setup
 	$(BIN)/ruff check src tests benchmarks
@@ -39,8 +39,8 @@ publish: setup
 	@test -n "$(RUN)" || (echo "usage: make publish RUN=runs/<run>"; exit 2)
 	mkdir -p results/train/$(notdir $(RUN))
 	cp $(addprefix $(RUN)/,config.yaml meta.json episodes.csv validation.csv updates.csv curves.png best_model.pt) results/train/$(notdir $(RUN))/
-	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --out results/train/$(notdir $(RUN))/test
-	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --scenario square_crossing --out results/train/$(notdir $(RUN))/test-square
+	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --out results/train/$(notdir $(RUN))/test --force
+	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --scenario square_crossing --out results/train/$(notdir $(RUN))/test-square --force
 
 # Make a published run's best-validation model the shipped one: make ship RUN=results/train/<run>
 ship:
@@ -53,5 +53,5 @@ results-doc: setup
 	$(BIN)/crowdplan report --fill docs/results.md
 
 results-orca: setup
-	$(BIN)/crowdplan eval --policy orca --scenario circle_crossing --episodes 500 --out results/orca/circle_crossing
-	$(BIN)/crowdplan eval --policy orca --scenario square_crossing --episodes 500 --out results/orca/square_crossing
+	$(BIN)/crowdplan eval --policy orca --scenario circle_crossing --episodes 500 --out results/orca/circle_crossing --force
+	$(BIN)/crowdplan eval --policy orca --scenario square_crossing --episodes 500 --out results/orca/square_crossing --force

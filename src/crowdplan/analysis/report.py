@@ -17,6 +17,7 @@ import re
 import shlex
 from pathlib import Path
 
+from crowdplan.evaluation import format_interval, format_value
 from crowdplan.io import atomic_write
 
 _BLOCK = re.compile(
@@ -36,12 +37,9 @@ COLUMNS = [
 
 
 def _cell(entry: dict, digits: int) -> str:
-    value, ci = entry.get("value"), entry.get("ci95") or [None, None]
-    if value is None:
-        return "n/a"
-    if ci[0] is None:
-        return f"{value:.{digits}f}"
-    return f"{value:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
+    """Value and interval as the CLI prints them: "n/a" when missing, no interval without one."""
+    value = format_value(entry.get("value"), digits)
+    return f"{value} {format_interval(entry.get('ci95'), digits)}".rstrip()
 
 
 def _model_episode(summary_path: Path, meta: dict) -> str:

@@ -468,7 +468,10 @@ def animation_frames(
     if title:
         ax.set_title(title, fontsize=9)
     canvas = fig.canvas
-    canvas.draw()  # solves the layout once; every frame then has the same geometry
+    # Solves the layout, which with an equal-aspect axes settles only on the second pass (after
+    # one, the title sits above the figure's top edge); every frame then has the same geometry.
+    canvas.draw()
+    canvas.draw()
     fig.set_layout_engine("none")
     background = canvas.copy_from_bbox(fig.bbox)
     current = _Current(ax, style)
