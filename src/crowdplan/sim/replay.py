@@ -137,7 +137,7 @@ def load_recording(
     )
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def scene_recording(name: str) -> Recording:
     """The shipped recording of an ETH/UCY scene (eth, hotel, zara1, zara2, univ)."""
     if name not in SCENES:

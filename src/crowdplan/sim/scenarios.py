@@ -157,9 +157,7 @@ def _crossing(config: WorldConfig, seed: int) -> InitialState:
     rng = np.random.default_rng(seed)
     n = config.humans
     if config.humans_min is not None:
-        n = int(
-            np.random.default_rng([seed, _STREAM_COUNT]).integers(config.humans_min, n + 1)
-        )
+        n = int(np.random.default_rng([seed, _STREAM_COUNT]).integers(config.humans_min, n + 1))
     robot_pos = np.array([0.0, -config.circle_radius])
     robot_goal = np.array([0.0, config.circle_radius])
     starts = [robot_pos]

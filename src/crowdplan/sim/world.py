@@ -827,8 +827,10 @@ def check_state(state: scenarios.InitialState, config: WorldConfig) -> None:
         raise ValueError(f"human_kind codes must be in 0..{len(scenarios.HUMAN_KINDS) - 1}")
     if np.any(kinds == scenarios.REPLAY) and state.track is None:
         raise ValueError("replayed humans (kind 'replay') need a track")
-    if np.any(kinds == scenarios.REPLAY) and config.scenario != "replay" and (
-        config.replay_fraction == 0
+    if (
+        np.any(kinds == scenarios.REPLAY)
+        and config.scenario != "replay"
+        and (config.replay_fraction == 0)
     ):
         raise ValueError(
             "this world holds no tracks: replayed humans need scenario 'replay' or replay_fraction"
