@@ -44,10 +44,15 @@ class _Mapping(dict):
 class _LineLoader(yaml.SafeLoader):
     """YAML loader that remembers the line of every mapping (for error messages)."""
 
-    def construct_mapping(self, node, deep=False):
-        mapping = _Mapping(super().construct_mapping(node, deep=deep))
-        mapping.line = node.start_mark.line + 1
-        return mapping
+
+def _construct_mapping(loader: _LineLoader, node: yaml.MappingNode):
+    mapping = _Mapping()
+    mapping.line = node.start_mark.line + 1
+    yield mapping
+    mapping.update(loader.construct_mapping(node))
+
+
+_LineLoader.add_constructor("tag:yaml.org,2002:map", _construct_mapping)
 
 
 def load_scenes(path: str | Path, config: WorldConfig | None = None) -> list[InitialState]:
