@@ -285,7 +285,28 @@ def build_parser() -> argparse.ArgumentParser:
     from crowdplan.deploy.cli import add_commands as add_deploy_commands
 
     add_deploy_commands(sub)
+    _show_defaults(parser)
     return parser
+
+
+def _show_defaults(parser: argparse.ArgumentParser) -> None:
+    """Add "(default: ...)" to the help of every option of every command that takes a value and
+    does not state its default itself (required options say so instead)."""
+    commands = [parser]
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            commands += action.choices.values()
+    for command in commands:
+        for action in command._actions:
+            if not action.option_strings or action.nargs == 0 or "default" in (action.help or ""):
+                continue
+            if action.required:
+                note = "required"
+            elif action.default in (None, []):
+                note = "default: none"
+            else:
+                note = "default: %(default)s"
+            action.help = f"{action.help} ({note})" if action.help else f"({note})"
 
 
 def _silence_stdout() -> None:
