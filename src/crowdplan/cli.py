@@ -47,7 +47,7 @@ def _add_world_args(parser: argparse.ArgumentParser) -> None:
 def _add_policy_args(parser: argparse.ArgumentParser) -> None:
     group = parser.add_mutually_exclusive_group()
     group.add_argument(
-        "--policy", default=None, help="built-in planner: orca (default: orca unless --model)"
+        "--policy", default=None, help="built-in planner: orca or straight (default: orca unless --model)"
     )
     group.add_argument(
         "--model",
@@ -238,7 +238,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("train", help="train a DSAC planner from a YAML config")
-    p.add_argument("--config", help="YAML config, e.g. configs/lsa_dsac.yaml")
+    p.add_argument(
+        "--config",
+        help="YAML config, e.g. configs/lsa_dsac.yaml (default: none; required for a new run)",
+    )
     p.add_argument(
         "--seed", type=int, default=None, help="training seed (default: the config's seed)"
     )
@@ -268,7 +271,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="critic and policy halves of each update on two threads (bitwise the same results; "
         "may change on --resume) (default: the config's dsac.parallel_update)",
     )
-    p.add_argument("--out", default=None, help="run folder (default runs/<name>-s<seed>)")
+    p.add_argument("--out", default=None, help="run folder (default: runs/<name>-s<seed>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--no-progress", action="store_true", help="plain log lines, no progress bar")
     p.set_defaults(func=cmd_train)
@@ -278,7 +281,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--fill",
         metavar="FILE.md",
-        help="regenerate the '<!-- crowdplan report DIR ... -->' blocks of a markdown file",
+        help="regenerate the '<!-- crowdplan report DIR ... -->' blocks of a markdown file "
+        "(default: none, print the tables of the given folders)",
     )
     p.set_defaults(func=cmd_report)
 

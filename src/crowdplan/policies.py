@@ -11,7 +11,7 @@ import yaml
 from crowdplan.config import WorldConfig, to_dict
 from crowdplan.policy import Policy
 
-BUILTIN_POLICIES = ("orca",)
+BUILTIN_POLICIES = ("orca", "straight")
 
 
 def parse_options(items: list[str], own_flags: tuple[str, ...] = ()) -> dict:
@@ -48,6 +48,10 @@ def load_policy(policy: str | None, model: str | None) -> tuple[Policy, WorldCon
         from crowdplan.algos.orca_planner import OrcaPlanner
 
         return OrcaPlanner(), WorldConfig()
+    if name == "straight":
+        from crowdplan.algos.straight_planner import StraightPlanner
+
+        return StraightPlanner(), WorldConfig()
     raise ValueError(
         f"unknown policy {name!r}; built-in policies are {BUILTIN_POLICIES}, "
         "or pass --model with a run folder, checkpoint or shipped model name"
