@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import tempfile
 import time
 from pathlib import Path
@@ -43,6 +44,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--latency", type=float, default=0.0, help="pose latency (s)")
     g.add_argument("--drop-rate", type=float, default=0.0, help="share of samples lost")
     g.add_argument("--noise-seed", type=int, default=0)
+    p.add_argument("--log-stops", action="store_true", help="log every safety stop and its reason")
     p.set_defaults(func=cmd_deploy)
 
     from crowdplan.deploy.ros2 import add_ros2_args
@@ -135,6 +137,8 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         if args.split == "val"
         else evaluation.test_seeds(args.episodes)
     )
+    if not args.log_stops:
+        logging.getLogger("crowdplan.deploy").setLevel(logging.ERROR)
     start = time.perf_counter()
     records, stats = run_deployment(policy, config, seeds, sensor, runtime_config(args, config.dt))
     elapsed = time.perf_counter() - start
