@@ -1,7 +1,8 @@
 """The evaluation harness and the one place where metrics are defined (docs/metrics.md).
 
 Episodes run batched: up to ``batch_size`` environments step together, each finished environment
-is frozen until the whole batch is done. The same seeds give identical records.
+is frozen until the whole batch is done. The same seeds give identical records. A policy with a
+``bind_world(world)`` method is handed each batch's ``World`` before its first step.
 """
 
 from __future__ import annotations
@@ -135,6 +136,8 @@ def run_episodes(
 def _run_batch(policy, config: WorldConfig, seeds, record_traces) -> list[EpisodeRecord]:
     world = World(config, len(seeds))
     world.reset(seeds)
+    if hasattr(policy, "bind_world"):  # planners that query the simulator (oracle lookahead)
+        policy.bind_world(world)
     e = len(seeds)
     active = np.ones(e, dtype=bool)
     outcome = np.full(e, RUNNING)

@@ -16,6 +16,8 @@ import torch
 from crowdplan.algos.base import Agent
 from crowdplan.algos.dsac import DSACConfig
 from crowdplan.algos.dsac_agent import DSACAgent
+from crowdplan.algos.value_rl import MODEL_FORMAT as VALUE_RL_MODEL_FORMAT
+from crowdplan.algos.value_rl import ValueRLAgent, ValueRLConfig, load_value_rl_payload
 from crowdplan.config import WorldConfig
 from crowdplan.models import MODEL_FORMAT as DSAC_MODEL_FORMAT
 from crowdplan.models import load_dsac_payload
@@ -46,7 +48,12 @@ class Algorithm:
 
 ALGORITHMS: dict[str, Algorithm] = {
     algo.name: algo
-    for algo in (Algorithm("dsac", DSACConfig, DSACAgent, DSAC_MODEL_FORMAT, load_dsac_payload),)
+    for algo in (
+        Algorithm("dsac", DSACConfig, DSACAgent, DSAC_MODEL_FORMAT, load_dsac_payload),
+        Algorithm(
+            "value_rl", ValueRLConfig, ValueRLAgent, VALUE_RL_MODEL_FORMAT, load_value_rl_payload
+        ),
+    )
 }
 
 

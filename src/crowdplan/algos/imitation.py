@@ -1,0 +1,167 @@
+"""Imitation learning of a state-value network from ORCA demonstrations (SPEC section 6).
+
+The robot is driven by the ORCA planner (:mod:`crowdplan.algos.orca_planner`, safety space 0.15
+as CrowdNav's demonstrations); every visited state is labelled with its discounted return
+``G_t = sum_k gamma_step^k r_{t+k}`` to the end of its episode (a timeout ends it too, as in
+CrowdNav), and the value network is regressed on these returns (MSE, SGD with momentum).
+
+Demonstration episodes use their own seeds, ``DEMO_SEED_BASE + 100000 * run_seed + k``, disjoint
+from the test (1000..1499), validation (0..99) and training (2000, 2001, ...) episodes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+
+from crowdplan.algos.orca_planner import OrcaPlanner
+from crowdplan.config import WorldConfig
+from crowdplan.features import Features, robot_centric
+from crowdplan.sim.world import OUTCOME_NAMES, RUNNING, World
+
+DEMO_SEED_BASE = 1_000_000
+SEEDS_PER_RUN = 100_000
+
+
+@dataclass
+class Demonstrations:
+    """Transitions of the demonstrated episodes, one row per step (features robot-centric).
+
+    ``returns`` are the discounted returns from each state; ``terminated`` marks goal or
+    collision (a timeout is not terminal for the transitions handed to a replay buffer).
+    """
+
+    states: Features
+    next_states: Features
+    rewards: np.ndarray
+    terminated: np.ndarray
+    returns: np.ndarray
+    outcomes: dict[str, int]
+
+    def __len__(self) -> int:
+        return len(self.rewards)
+
+
+def demonstration_seeds(episodes: int, run_seed: int) -> list[int]:
+    """Seeds of the demonstration episodes of a run."""
+    if not 1 <= episodes <= SEEDS_PER_RUN:
+        raise ValueError(
+            f"imitation learning needs 1..{SEEDS_PER_RUN} demonstration episodes, got {episodes} "
+            "(set il_episodes: 0 to skip imitation learning)"
+        )
+    base = DEMO_SEED_BASE + SEEDS_PER_RUN * run_seed
+    return list(range(base, base + episodes))
+
+
+def collect_demonstrations(
+    config: WorldConfig,
+    seeds: list[int],
+    gamma_step: float,
+    safety_space: float = 0.15,
+    batch_size: int = 100,
+) -> Demonstrations:
+    """Run the ORCA planner on one episode per seed (``batch_size`` at a time)."""
+    if not seeds:
+        raise ValueError("no demonstration episodes: imitation learning needs at least one")
+    if config.kinematics != "holonomic":
+        raise ValueError(
+            "ORCA demonstrations drive a holonomic robot; a unicycle world needs il_episodes: 0"
+        )
+    planner = OrcaPlanner(config.dt, config.orca, safety_space)
+    parts = [
+        _rollout(planner, config, seeds[i : i + batch_size], gamma_step)
+        for i in range(0, len(seeds), batch_size)
+    ]
+    outcomes: dict[str, int] = {}
+    for part in parts:
+        for name, count in part.outcomes.items():
+            outcomes[name] = outcomes.get(name, 0) + count
+
+    def cat(arrays) -> np.ndarray:
+        return np.concatenate(list(arrays))
+
+    return Demonstrations(
+        states=Features(*(cat(p.states[i] for p in parts) for i in range(3))),
+        next_states=Features(*(cat(p.next_states[i] for p in parts) for i in range(3))),
+        rewards=cat(p.rewards for p in parts),
+        terminated=cat(p.terminated for p in parts),
+        returns=cat(p.returns for p in parts),
+        outcomes=outcomes,
+    )
+
+
+def _rollout(
+    planner: OrcaPlanner, config: WorldConfig, seeds: list[int], gamma_step: float
+) -> Demonstrations:
+    world = World(config, len(seeds))
+    world.reset(seeds)
+    active = np.ones(len(seeds), dtype=bool)
+    final = np.full(len(seeds), RUNNING)
+    observations, rewards, terminated, alive = [world.observe()], [], [], []
+    while active.any():
+        step = world.step(planner.act(*observations[-1]).actions, active)
+        observations.append(world.observe())
+        rewards.append(step.reward)  # 0 in environments whose episode has ended
+        terminated.append(step.terminated)
+        alive.append(active.copy())
+        final = np.where(active, step.outcome, final)
+        active &= step.outcome == RUNNING
+    reward = np.array(rewards)  # (T, E)
+    returns = np.zeros_like(reward)
+    future = np.zeros(len(seeds))
+    for t in range(len(reward) - 1, -1, -1):
+        future = reward[t] + gamma_step * future
+        returns[t] = future
+    rows = np.array(alive)  # (T, E): the steps that belong to an episode
+    robot, humans, mask = (np.array([obs[i] for obs in observations]) for i in range(3))
+    unicycle = config.kinematics == "unicycle"
+    names, counts = np.unique([OUTCOME_NAMES[int(code)] for code in final], return_counts=True)
+    return Demonstrations(
+        states=robot_centric(robot[:-1][rows], humans[:-1][rows], mask[:-1][rows], unicycle),
+        next_states=robot_centric(robot[1:][rows], humans[1:][rows], mask[1:][rows], unicycle),
+        rewards=reward[rows].astype(np.float32),
+        terminated=np.array(terminated)[rows],
+        returns=returns[rows].astype(np.float32),
+        outcomes={str(n): int(c) for n, c in zip(names, counts, strict=True)},
+    )
+
+
+def fit_values(
+    net: nn.Module,
+    demos: Demonstrations,
+    epochs: int,
+    lr: float,
+    batch_size: int,
+    generator: torch.Generator,
+    momentum: float = 0.9,
+    log: Callable[[str], None] | None = None,
+) -> float:
+    """Regress ``net`` on the demonstrations' returns (MSE, SGD with momentum, shuffled
+    mini-batches drawn with ``generator``); returns the mean loss of the last epoch."""
+    if epochs < 1:
+        raise ValueError(f"imitation learning needs at least one epoch, got {epochs}")
+    device = next(net.parameters()).device
+    robot, humans, mask = (torch.from_numpy(x).to(device) for x in demos.states)
+    target = torch.from_numpy(demos.returns).to(device)
+    optimizer = torch.optim.SGD(net.parameters(), lr=lr, momentum=momentum)
+    n = len(target)
+    mean_loss = float("nan")
+    for epoch in range(epochs):
+        order = torch.randperm(n, generator=generator).to(device)
+        total = 0.0
+        for start in range(0, n, batch_size):
+            index = order[start : start + batch_size]
+            values, _ = net(robot[index], humans[index], mask[index])
+            loss = torch.nn.functional.mse_loss(values, target[index])
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            total += float(loss) * len(index)
+        mean_loss = total / n
+        if log is not None:
+            log(f"imitation learning epoch {epoch + 1}/{epochs}: loss {mean_loss:.5f}")
+    return mean_loss

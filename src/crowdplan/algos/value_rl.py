@@ -1,0 +1,323 @@
+"""Value-network RL with one-step lookahead: CADRL, LSTM-RL and SARL (SPEC section 6).
+
+The recipe of CrowdNav's value-based baselines, batched over the loop's environments:
+
+1. imitation learning (:meth:`ValueRLAgent.pretrain`): ``il_episodes`` ORCA demonstrations, the
+   value network regressed on their discounted returns for ``il_epochs`` epochs; the
+   demonstrations' transitions then seed the replay buffer (CrowdNav's memory held them too);
+2. RL: the robot acts epsilon-greedily (``epsilon_start`` -> ``epsilon_end`` linearly over
+   ``epsilon_decay_episodes`` episodes) on the one-step lookahead
+   ``argmax_a r(s, a) + gamma_step * V(s'_a)`` (:mod:`crowdplan.sim.lookahead`); after every
+   finished episode ``train_batches`` mini-batches regress ``V(s)`` on
+   ``r + gamma_step * (1 - terminated) * V_target(s')``, the target network being copied from the
+   value network every ``target_update_episodes`` episodes.
+
+``gamma_step = gamma ** (dt * v_pref)``: ``gamma`` is the discount per second of travel at the
+preferred speed. Differences from CrowdNav (docs/baselines.md): targets are computed when a
+batch is drawn, with the current target network, instead of once when the episode is stored;
+a time-limit truncation bootstraps instead of ending the return; candidates that end the episode
+(collision, goal) are scored by their reward alone.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from crowdplan.algos.base import Observation, Transitions
+from crowdplan.algos.buffer import ReplayBuffer
+from crowdplan.algos.imitation import collect_demonstrations, demonstration_seeds, fit_values
+from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
+from crowdplan.features import Features, robot_centric
+from crowdplan.nets.value import VALUE_NETWORKS, ValueNetwork, make_value_network
+from crowdplan.policy import PolicyOutput
+from crowdplan.sim.actions import N_ACTIONS
+from crowdplan.sim.lookahead import LOOKAHEAD_MODES, action_values, one_step, step_discount
+
+if TYPE_CHECKING:
+    from crowdplan.sim.world import World
+    from crowdplan.training.config import TrainConfig
+
+MODEL_FORMAT = "crowdplan-value_rl-policy/1"
+
+
+@dataclass
+class ValueRLConfig:
+    """Hyper-parameters of the value-based baselines (defaults: CrowdNav's); YAML ``value_rl``.
+
+    Attributes:
+        network: value network, ``cadrl``, ``lstm_rl`` or ``sarl``.
+        lookahead: human next states in the lookahead, ``constant_velocity`` or ``oracle`` (the
+            simulator's true next states, what CrowdNav did).
+        gamma: discount per second of travel at v_pref (per step ``gamma ** (dt * v_pref)``).
+        il_episodes: ORCA demonstration episodes (0: no imitation learning, RL starts from the
+            random initialisation).
+        il_epochs: passes over the demonstrations.
+        il_lr: SGD learning rate of imitation learning.
+        il_safety_space: ORCA safety space of the demonstrating robot (m).
+        lr: SGD learning rate of RL.
+        momentum: SGD momentum (imitation learning and RL).
+        batch_size: states per mini-batch (imitation learning and RL).
+        train_batches: RL mini-batches after every finished episode.
+        buffer_size: replay capacity in transitions.
+        epsilon_start, epsilon_end: exploration rate at the first RL episode and after the decay.
+        epsilon_decay_episodes: episodes of the linear decay.
+        target_update_episodes: episodes between copies of the value network to the target.
+    """
+
+    network: str = spec("sarl", choices=VALUE_NETWORKS)
+    lookahead: str = spec("constant_velocity", choices=LOOKAHEAD_MODES)
+    gamma: float = spec(0.9, low=0.0, high=1.0)
+    il_episodes: int = spec(3000, low=0)
+    il_epochs: int = spec(50, low=1)
+    il_lr: float = spec(0.01, low=0.0, low_open=True)
+    il_safety_space: float = spec(0.15, low=0.0)
+    lr: float = spec(0.001, low=0.0, low_open=True)
+    momentum: float = spec(0.9, low=0.0, high=1.0)
+    batch_size: int = spec(100, low=1)
+    train_batches: int = spec(100, low=0)
+    buffer_size: int = spec(100_000, low=1)
+    epsilon_start: float = spec(0.5, low=0.0, high=1.0)
+    epsilon_end: float = spec(0.1, low=0.0, high=1.0)
+    epsilon_decay_episodes: int = spec(4000, low=1)
+    target_update_episodes: int = spec(50, low=1)
+
+    def __post_init__(self) -> None:
+        check_fields(self, "value_rl")
+
+
+class ValuePolicy:
+    """Greedy one-step lookahead on a value network, over raw observations.
+
+    The evaluation harness hands over the world it plays through :meth:`bind_world`: the
+    lookahead then uses that world's configuration and, in ``oracle`` mode, queries it.
+    Per-human scores are SARL's attention weights on the current state.
+    """
+
+    def __init__(
+        self,
+        net: ValueNetwork,
+        world: WorldConfig,
+        lookahead: str,
+        gamma_step: float,
+        name: str,
+        metadata: dict | None = None,
+    ):
+        self.net = net
+        self.world = world
+        self.lookahead = lookahead
+        self.gamma_step = gamma_step
+        self.name = name
+        self.metadata = {**(metadata or {}), "lookahead": lookahead}
+        self.kinematics = world.kinematics
+        self._sim: World | None = None
+
+    def bind_world(self, world: World) -> None:
+        """Play in ``world`` from now on (its observations are the ones :meth:`act` gets)."""
+        self._sim = world
+
+    def greedy(
+        self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray, sim: World | None
+    ) -> np.ndarray:
+        """The best action (E,) of the lookahead; ``sim`` is the world the observation is of."""
+        config = self.world if sim is None else sim.config
+        candidates = one_step(robot, humans, mask, config, self.lookahead, sim)
+        return action_values(candidates, self.net, self.gamma_step).argmax(dim=1).cpu().numpy()
+
+    @torch.no_grad()
+    def act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> PolicyOutput:
+        actions = self.greedy(robot, humans, mask, self._sim)
+        scores = None
+        if self.net.has_scores:
+            device = next(self.net.parameters()).device
+            feats = robot_centric(robot, humans, mask, self.kinematics == "unicycle")
+            _, attention = self.net(*(torch.from_numpy(x).to(device) for x in feats))
+            scores = attention.cpu().numpy()
+        return PolicyOutput(actions, scores)
+
+
+def _features(obs: Observation, unicycle: bool) -> Features:
+    return robot_centric(obs["robot"], obs["humans"], obs["mask"].astype(bool), unicycle)
+
+
+class ValueRLAgent:
+    """The training-loop agent of CADRL, LSTM-RL and SARL (see the module docstring)."""
+
+    def __init__(self, config: TrainConfig, device: torch.device):
+        self.config = config
+        self.params: ValueRLConfig = config.algo_config
+        self.device = device
+        world = config.world
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(config.seed)
+            self.net = make_value_network(self.params.network).to(device)
+        self.target = copy.deepcopy(self.net).requires_grad_(False)
+        self.optimizer = torch.optim.SGD(
+            self.net.parameters(), lr=self.params.lr, momentum=self.params.momentum
+        )
+        self.buffer = ReplayBuffer(self.params.buffer_size, world.humans, seed=config.seed + 1)
+        self.rng = np.random.default_rng(config.seed + 2)
+        self.generator = torch.Generator().manual_seed(config.seed + 3)
+        self.gamma_step = step_discount(self.params.gamma, world)
+        self.unicycle = world.kinematics == "unicycle"
+        self.episodes = 0
+        self.target_copies = 0
+        self.batch_credit = 0
+        self.n_updates = 0
+        self._greedy = self.policy(config.name)
+
+    # ------------------------------------------------------------------ imitation learning
+    def pretrain(self, log: Any) -> dict[str, float] | None:
+        """Imitation learning from ORCA demonstrations; nothing when ``il_episodes`` is 0."""
+        p = self.params
+        if p.il_episodes == 0:
+            log("value_rl: il_episodes is 0, RL starts from the random initialisation")
+            return None
+        seeds = demonstration_seeds(p.il_episodes, self.config.seed)
+        demos = collect_demonstrations(
+            self.config.world, seeds, self.gamma_step, p.il_safety_space
+        )
+        loss = fit_values(
+            self.net, demos, p.il_epochs, p.il_lr, p.batch_size, self.generator, p.momentum, log
+        )
+        self.target.load_state_dict(self.net.state_dict())
+        states, after = demos.states, demos.next_states
+        self.buffer.add_batch(
+            *states,
+            np.zeros(len(demos), dtype=np.int64),  # ORCA's commands are not discrete actions
+            demos.rewards,
+            *after,
+            demos.terminated.astype(np.float32),
+        )
+        rates = {f"demo_{k}_rate": v / p.il_episodes for k, v in sorted(demos.outcomes.items())}
+        return {"demo_states": len(demos), "il_loss": loss, **rates}
+
+    # ------------------------------------------------------------------ RL
+    @property
+    def epsilon(self) -> float:
+        """Exploration rate of the current episode."""
+        p = self.params
+        fraction = min(self.episodes / p.epsilon_decay_episodes, 1.0)
+        return p.epsilon_start + (p.epsilon_end - p.epsilon_start) * fraction
+
+    def act(self, obs: Observation, world: Any) -> np.ndarray:
+        num_envs = len(obs["robot"])
+        explore = self.rng.random(num_envs) < self.epsilon
+        actions = self.rng.integers(0, N_ACTIONS, size=num_envs)
+        if not explore.all():
+            mask = obs["mask"].astype(bool)
+            greedy = self._greedy.greedy(obs["robot"], obs["humans"], mask, world)
+            actions = np.where(explore, actions, greedy)
+        return actions
+
+    def observe(self, step: Transitions) -> None:
+        self.buffer.add_batch(
+            *_features(step.obs, self.unicycle),
+            step.actions,
+            step.rewards.astype(np.float32),
+            *_features(step.next_obs, self.unicycle),
+            step.terminated.astype(np.float32),
+        )
+        finished = int(np.count_nonzero(step.terminated | step.truncated))
+        self.batch_credit += finished * self.params.train_batches
+
+    def update(self) -> dict[str, float] | None:
+        stats = None
+        while self.batch_credit > 0:
+            batch = self.buffer.sample(self.params.batch_size, self.device)
+            with torch.no_grad():
+                next_value, _ = self.target(
+                    batch["next_robot"], batch["next_humans"], batch["next_mask"]
+                )
+            target = batch["reward"] + self.gamma_step * (1.0 - batch["done"]) * next_value
+            value, _ = self.net(batch["robot"], batch["humans"], batch["mask"])
+            loss = F.mse_loss(value, target)
+            self.optimizer.zero_grad()
+            loss.backward()
+            self.optimizer.step()
+            self.batch_credit -= 1
+            self.n_updates += 1
+            stats = {"value_loss": float(loss), "epsilon": self.epsilon}
+        return stats
+
+    def episodes_done(self, episodes: int) -> None:
+        """Advance the exploration schedule; copy the target network every
+        ``target_update_episodes`` episodes."""
+        self.episodes = episodes
+        copies = episodes // self.params.target_update_episodes
+        if copies > self.target_copies:
+            self.target.load_state_dict(self.net.state_dict())
+            self.target_copies = copies
+
+    # ------------------------------------------------------------------ policy, files, state
+    def policy(self, name: str) -> ValuePolicy:
+        return ValuePolicy(
+            self.net, self.config.world, self.params.lookahead, self.gamma_step, name
+        )
+
+    def model_payload(self, info: dict[str, Any]) -> dict[str, Any]:
+        return {
+            "format": MODEL_FORMAT,
+            "value_rl": to_dict(self.params),
+            "world": to_dict(self.config.world),
+            "info": {**info, "network": self.params.network, "lookahead": self.params.lookahead},
+            "network": {k: v.cpu() for k, v in self.net.state_dict().items()},
+        }
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "net": self.net.state_dict(),
+            "target": self.target.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "buffer": self.buffer.state_dict(),
+            "rng": self.rng.bit_generator.state,
+            "generator": self.generator.get_state(),
+            "counters": {
+                "episodes": self.episodes,
+                "target_copies": self.target_copies,
+                "batch_credit": self.batch_credit,
+                "n_updates": self.n_updates,
+            },
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.net.load_state_dict(state["net"])
+        self.target.load_state_dict(state["target"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.buffer.load_state_dict(state["buffer"])
+        self.rng.bit_generator.state = state["rng"]
+        self.generator.set_state(state["generator"])
+        counters = state["counters"]
+        self.episodes = int(counters["episodes"])
+        self.target_copies = int(counters["target_copies"])
+        self.batch_credit = int(counters["batch_credit"])
+        self.n_updates = int(counters["n_updates"])
+
+
+def load_value_rl_payload(payload: dict[str, Any], path: Path) -> tuple[ValuePolicy, WorldConfig]:
+    """The greedy lookahead policy of a value_rl model file (format :data:`MODEL_FORMAT`)."""
+    if payload.get("format") != MODEL_FORMAT:
+        raise ValueError(
+            f"{path} is a model of format {payload.get('format')!r}, not a value_rl model "
+            f"({MODEL_FORMAT})"
+        )
+    params = from_dict(ValueRLConfig, payload["value_rl"], "value_rl")
+    world = WorldConfig.from_dict(payload["world"])
+    net = make_value_network(params.network)
+    try:
+        net.load_state_dict(payload["network"])
+    except RuntimeError as error:
+        raise ValueError(
+            f"weights in {path} do not match value network {params.network!r}: {error}"
+        ) from error
+    info = payload["info"]
+    metadata = {"model": str(path), "algo": "value_rl", **info}
+    name = info.get("name", params.network)
+    gamma_step = step_discount(params.gamma, world)
+    return ValuePolicy(net.eval(), world, params.lookahead, gamma_step, name, metadata), world

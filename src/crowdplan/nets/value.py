@@ -1,0 +1,122 @@
+"""State-value networks of the value-based baselines (SPEC section 6): CADRL, LSTM-RL and SARL.
+
+Every network takes the robot-centric tensors of :mod:`crowdplan.features` (robot (B, 6),
+humans (B, N, 7), mask (B, N) bool) and returns ``(value (B,), scores (B, N) or None)``. N may be
+0 and padding rows (mask False) never change an output.
+
+- CADRL: MLP 13 -> 150 -> 100 -> 100 -> 1 on one robot-human pair. With several humans the value
+  is the minimum over the pairs; with no human the pair is the robot with an all-zero human row
+  (the network has no input for "no human"). Scores: None.
+- LSTM-RL: LSTM 13 -> 50 over the pairs sorted by decreasing distance (closest last), value MLP
+  on ``[s_r, h_last]`` 56 -> 150 -> 100 -> 100 -> 1. Scores: None.
+- SARL: ``e_i`` = MLP 13 -> 150 -> 100, ``h_i`` = MLP 100 -> 100 -> 50, attention score
+  ``alpha_i`` = MLP 200 -> 100 -> 100 -> 1 on ``[e_i, mean_j e_j]`` (mean over the real humans),
+  masked softmax, value MLP on ``[s_r, sum_i softmax(alpha)_i h_i]`` 56 -> 150 -> 100 -> 100 -> 1.
+  Scores: the attention weights.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from crowdplan.nets.encoders import (
+    PAIR_DIM,
+    ROBOT_DIM,
+    lstm_last_hidden,
+    masked_softmax,
+    mlp,
+    order_humans,
+)
+from crowdplan.nets.heads import ValueHead
+
+VALUE_NETWORKS = ("cadrl", "lstm_rl", "sarl")
+
+
+def _pairs(robot: Tensor, humans: Tensor, mask: Tensor) -> Tensor:
+    """(B, N, 13) rows ``[s_r, o_i]``, padding rows' human part zeroed."""
+    humans = humans.masked_fill(~mask.unsqueeze(-1), 0.0)
+    return torch.cat([robot.unsqueeze(1).expand(-1, humans.shape[1], -1), humans], dim=-1)
+
+
+class ValueNetwork(nn.Module):
+    """Base class: ``forward(robot, humans, mask) -> (value (B,), scores (B, N) | None)``."""
+
+    name: str
+    has_scores = False  # whether forward returns per-human scores
+
+    def forward(
+        self, robot: Tensor, humans: Tensor, mask: Tensor
+    ) -> tuple[Tensor, Tensor | None]:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+class CADRL(ValueNetwork):
+    """Pairwise value network; the value of a crowd is the minimum over robot-human pairs."""
+
+    name = "cadrl"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.value = ValueHead(PAIR_DIM)
+
+    def forward(self, robot: Tensor, humans: Tensor, mask: Tensor) -> tuple[Tensor, None]:
+        if humans.shape[1] == 0:
+            humans = humans.new_zeros(humans.shape[0], 1, humans.shape[2])
+            mask = mask.new_zeros(mask.shape[0], 1)
+        pair_values = self.value(_pairs(robot, humans, mask)).squeeze(-1)  # (B, N)
+        # rows without any real human keep their first (all-zero) pair
+        any_human = mask.any(dim=1, keepdim=True)
+        valid = mask | (~any_human & (torch.arange(mask.shape[1], device=mask.device) == 0))
+        value = pair_values.masked_fill(~valid, float("inf")).min(dim=1).values
+        return value, None
+
+
+class LSTMRL(ValueNetwork):
+    """LSTM over the distance-sorted pairs (closest last), then a value MLP."""
+
+    name = "lstm_rl"
+
+    def __init__(self, hidden: int = 50) -> None:
+        super().__init__()
+        self.lstm = nn.LSTM(PAIR_DIM, hidden, batch_first=True)
+        self.value = ValueHead(ROBOT_DIM + hidden)
+
+    def forward(self, robot: Tensor, humans: Tensor, mask: Tensor) -> tuple[Tensor, None]:
+        index = order_humans(humans, mask, "distance_desc")
+        humans = humans.gather(1, index.unsqueeze(-1).expand(-1, -1, humans.shape[-1]))
+        mask = mask.gather(1, index)
+        last = lstm_last_hidden(self.lstm, _pairs(robot, humans, mask), mask.sum(dim=1))
+        return self.value(torch.cat([robot, last], dim=1)).squeeze(-1), None
+
+
+class SARL(ValueNetwork):
+    """Socially attentive value network (CrowdNav's SARL with the global state)."""
+
+    name = "sarl"
+    has_scores = True
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.f_e = mlp([PAIR_DIM, 150, 100], last_relu=True)
+        self.f_h = mlp([100, 100, 50])
+        self.f_a = mlp([200, 100, 100, 1])
+        self.value = ValueHead(ROBOT_DIM + 50)
+
+    def forward(self, robot: Tensor, humans: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
+        e = self.f_e(_pairs(robot, humans, mask))  # (B, N, 100)
+        weights = mask.unsqueeze(-1).to(e.dtype)
+        count = weights.sum(dim=1, keepdim=True).clamp(min=1.0)
+        mean = (e * weights).sum(dim=1, keepdim=True) / count
+        scores = self.f_a(torch.cat([e, mean.expand_as(e)], dim=-1)).squeeze(-1)
+        attention = masked_softmax(scores, mask)
+        crowd = (attention.unsqueeze(-1) * self.f_h(e)).sum(dim=1)
+        return self.value(torch.cat([robot, crowd], dim=1)).squeeze(-1), attention
+
+
+def make_value_network(name: str) -> ValueNetwork:
+    """A freshly initialised value network by name (``cadrl``, ``lstm_rl`` or ``sarl``)."""
+    classes = {cls.name: cls for cls in (CADRL, LSTMRL, SARL)}
+    if name not in classes:
+        raise ValueError(f"unknown value network {name!r}; valid networks: {', '.join(classes)}")
+    return classes[name]()
