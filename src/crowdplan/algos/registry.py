@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
+from crowdplan.algos.a2c import A2C_MODEL_FORMAT, A2CAgent, A2CConfig, load_a2c_payload
 from crowdplan.algos.base import Agent
 from crowdplan.algos.dsac import DSACConfig
 from crowdplan.algos.dsac_agent import DSACAgent
@@ -50,6 +51,7 @@ ALGORITHMS: dict[str, Algorithm] = {
     algo.name: algo
     for algo in (
         Algorithm("dsac", DSACConfig, DSACAgent, DSAC_MODEL_FORMAT, load_dsac_payload),
+        Algorithm("a2c", A2CConfig, A2CAgent, A2C_MODEL_FORMAT, load_a2c_payload),
         Algorithm(
             "value_rl", ValueRLConfig, ValueRLAgent, VALUE_RL_MODEL_FORMAT, load_value_rl_payload
         ),

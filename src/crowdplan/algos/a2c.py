@@ -1,0 +1,303 @@
+"""LSTM-A2C (SPEC section 6): advantage actor-critic over the LSTM-RL encoder.
+
+Network: :class:`~crowdplan.nets.lstm_rl.LSTMRLEncoder` (LSTM 13 -> 50 over the humans, closest
+last, joined to the robot part: 56-d), shared by an actor MLP 56 -> 150 -> 100 -> 81 (logits of
+the action table) and a critic MLP 56 -> 150 -> 100 -> 100 -> 1.
+
+Training (synchronous A2C over the loop's E parallel environments): the agent samples actions
+from the policy, collects ``n_steps`` environment steps (``n_steps * E`` transitions), then takes
+one gradient step on
+
+    loss = -mean(A_t log pi(a_t|s_t)) + value_coef * mean((G_t - V(s_t))^2) / 2
+           - entropy_coef * mean(H(pi(.|s_t)))
+
+with the n-step returns ``G_t = r_t + gamma (1 - terminated_t) B_t`` where ``B_t`` is
+``V(s'_t)`` when step t is the rollout's last or was truncated by the time limit (the state did
+not end: bootstrap from the true last observation) and ``G_{t+1}`` otherwise; ``A_t = G_t - V(s_t)``
+(V detached). Gradients are clipped to ``max_grad_norm``. The greedy policy is the actor's argmax.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from crowdplan.algos.base import Observation, Transitions
+from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
+from crowdplan.features import robot_centric
+from crowdplan.nets.heads import PolicyHead, ValueHead
+from crowdplan.nets.lstm_rl import LSTMRLEncoder
+from crowdplan.policy import PolicyOutput
+from crowdplan.sim.actions import N_ACTIONS
+
+if TYPE_CHECKING:
+    from crowdplan.training.config import TrainConfig
+
+A2C_MODEL_FORMAT = "crowdplan-a2c-policy/1"
+
+# what the rollout stores per environment step, each (E, ...)
+_ROLLOUT_KEYS = (
+    "robot",
+    "humans",
+    "mask",
+    "action",
+    "reward",
+    "terminated",
+    "truncated",
+    "next_robot",
+    "next_humans",
+    "next_mask",
+)
+
+
+@dataclass
+class A2CConfig:
+    """LSTM-A2C hyper-parameters; YAML section ``a2c`` (configs/lstm_a2c.yaml explains the
+    preset's choices).
+
+    Attributes:
+        gamma: discount per environment step.
+        lr: Adam learning rate of the whole network.
+        n_steps: environment steps per rollout; one gradient step per rollout of
+            ``n_steps * num_envs`` transitions.
+        entropy_coef: weight of the policy-entropy bonus.
+        value_coef: weight of the critic's squared-error loss.
+        max_grad_norm: gradients are clipped to this global norm.
+        lstm_hidden: hidden size of the encoder's LSTM (SPEC: 50).
+        actor_hidden: hidden sizes of the actor MLP.
+        critic_hidden: hidden sizes of the critic MLP.
+    """
+
+    gamma: float = spec(0.95, low=0.0, high=1.0)
+    lr: float = spec(5e-4, low=0.0, low_open=True)
+    n_steps: int = spec(5, low=1)
+    entropy_coef: float = spec(0.01, low=0.0)
+    value_coef: float = spec(0.5, low=0.0)
+    max_grad_norm: float = spec(0.5, low=0.0, low_open=True)
+    lstm_hidden: int = spec(50, low=1)
+    actor_hidden: tuple[int, ...] = (150, 100)
+    critic_hidden: tuple[int, ...] = (150, 100, 100)
+
+    def __post_init__(self) -> None:
+        check_fields(self, "a2c")
+
+
+class ActorCritic(nn.Module):
+    """Shared LSTM-RL encoder, actor and critic heads.
+
+    ``forward(robot, humans, mask) -> (logits (B, 81), value (B,))``.
+    """
+
+    def __init__(self, params: A2CConfig):
+        super().__init__()
+        self.encoder = LSTMRLEncoder(params.lstm_hidden)
+        self.actor = PolicyHead(self.encoder.out_dim, N_ACTIONS, params.actor_hidden)
+        self.critic = ValueHead(self.encoder.out_dim, params.critic_hidden)
+
+    def forward(self, robot: Tensor, humans: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
+        features, _ = self.encoder(robot, humans, mask)
+        return self.actor(features), self.critic(features).squeeze(-1)
+
+    def value(self, robot: Tensor, humans: Tensor, mask: Tensor) -> Tensor:
+        """V(s), shape (B,)."""
+        features, _ = self.encoder(robot, humans, mask)
+        return self.critic(features).squeeze(-1)
+
+
+def n_step_returns(
+    rewards: Tensor, terminated: Tensor, truncated: Tensor, bootstrap: Tensor, gamma: float
+) -> Tensor:
+    """Discounted n-step returns of a rollout, all arguments (T, E) over T steps of E envs.
+
+    ``bootstrap[t]`` is V(s'_t), read where step t is the last one (t = T - 1) or truncated;
+    a terminated step bootstraps from nothing (a step both terminated and truncated counts as
+    terminated).
+    """
+    returns = torch.empty_like(rewards)
+    following = bootstrap[-1]
+    for t in range(rewards.shape[0] - 1, -1, -1):
+        following = torch.where(truncated[t], bootstrap[t], following)
+        returns[t] = rewards[t] + gamma * (~terminated[t]) * following
+        following = returns[t]
+    return returns
+
+
+def _tensors(feats: Any, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
+    return tuple(torch.from_numpy(np.ascontiguousarray(x)).to(device) for x in feats)
+
+
+class A2CPolicy:
+    """Greedy LSTM-A2C policy (argmax of the actor's logits) over raw observations."""
+
+    def __init__(
+        self, net: ActorCritic, world: WorldConfig, name: str, metadata: dict | None = None
+    ):
+        self.net = net
+        self.world = world
+        self.name = name
+        self.metadata = metadata or {}
+        self.kinematics = world.kinematics
+        self.unicycle = world.kinematics == "unicycle"
+
+    @torch.no_grad()
+    def act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> PolicyOutput:
+        feats = robot_centric(robot, humans, mask, self.unicycle)
+        device = next(self.net.parameters()).device
+        logits, _ = self.net(*_tensors(feats, device))
+        return PolicyOutput(logits.argmax(dim=1).cpu().numpy())
+
+
+class A2CAgent:
+    """Synchronous A2C behind the training loop: samples of the policy, one update per
+    ``n_steps`` environment steps (the rollout storage is part of the checkpoint)."""
+
+    def __init__(self, config: TrainConfig, device: torch.device):
+        self.config = config
+        self.params: A2CConfig = config.algo_config
+        self.device = device
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(config.seed)
+            self.net = ActorCritic(self.params).to(device)
+        self.optimizer = torch.optim.Adam(self.net.parameters(), lr=self.params.lr)
+        self.generator = torch.Generator(device=device).manual_seed(config.seed + 1)
+        self.unicycle = config.world.kinematics == "unicycle"
+        self.rollout: list[dict[str, np.ndarray]] = []
+        self.n_updates = 0
+        self._features: Any = None  # of the observation the last act() saw
+
+    def _features_of(self, obs: Observation) -> Any:
+        return robot_centric(obs["robot"], obs["humans"], obs["mask"].astype(bool), self.unicycle)
+
+    def pretrain(self, log: Any) -> None:
+        """A2C learns from its own experience only."""
+        return None
+
+    @torch.no_grad()
+    def act(self, obs: Observation, world: Any) -> np.ndarray:
+        self._features = feats = self._features_of(obs)
+        logits, _ = self.net(*_tensors(feats, self.device))
+        probs = torch.softmax(logits, dim=1)
+        return torch.multinomial(probs, 1, generator=self.generator).squeeze(1).cpu().numpy()
+
+    def observe(self, step: Transitions) -> None:
+        feats = self._features if self._features is not None else self._features_of(step.obs)
+        nxt = self._features_of(step.next_obs)
+        values = (
+            *feats,
+            np.asarray(step.actions, dtype=np.int64),
+            np.asarray(step.rewards, dtype=np.float32),
+            np.asarray(step.terminated, dtype=bool),
+            np.asarray(step.truncated, dtype=bool),
+            *nxt,
+        )
+        self.rollout.append(dict(zip(_ROLLOUT_KEYS, values, strict=True)))
+        self._features = None
+
+    def update(self) -> dict[str, float] | None:
+        """One gradient step once the rollout holds ``n_steps`` steps; then a fresh rollout."""
+        if len(self.rollout) < self.params.n_steps:
+            return None
+        batch = {k: np.stack([step[k] for step in self.rollout]) for k in _ROLLOUT_KEYS}
+        self.rollout = []
+        return self._learn(batch)
+
+    def _learn(self, batch: dict[str, np.ndarray]) -> dict[str, float]:
+        p = self.params
+        t = {k: torch.from_numpy(v).to(self.device) for k, v in batch.items()}
+        steps, envs = t["reward"].shape
+        flat = [t[k].flatten(0, 1) for k in ("robot", "humans", "mask")]
+        logits, values = self.net(*flat)
+        returns = n_step_returns(
+            t["reward"], t["terminated"], t["truncated"], self._bootstrap(t), p.gamma
+        ).flatten()
+        advantages = returns - values.detach()
+        log_probs = F.log_softmax(logits, dim=1)
+        entropy = -(log_probs.exp() * log_probs).sum(dim=1).mean()
+        chosen = log_probs.gather(1, t["action"].flatten().unsqueeze(1)).squeeze(1)
+        policy_loss = -(advantages * chosen).mean()
+        value_loss = 0.5 * (returns - values).pow(2).mean()
+        loss = policy_loss + p.value_coef * value_loss - p.entropy_coef * entropy
+        self.optimizer.zero_grad()
+        loss.backward()
+        grad_norm = nn.utils.clip_grad_norm_(self.net.parameters(), p.max_grad_norm)
+        self.optimizer.step()
+        self.n_updates += 1
+        stats = {
+            "policy_loss": policy_loss,
+            "value_loss": value_loss,
+            "entropy": entropy,
+            "grad_norm": grad_norm,
+            "mean_value": values.mean(),
+        }
+        return {k: float(v.detach()) for k, v in stats.items()}
+
+    @torch.no_grad()
+    def _bootstrap(self, t: dict[str, Tensor]) -> Tensor:
+        """V(s'_t) (T, E) where step t is the last one or truncated (and not terminated); 0
+        elsewhere, where :func:`n_step_returns` does not read it."""
+        needed = t["truncated"].clone()
+        needed[-1] = True
+        needed &= ~t["terminated"]
+        bootstrap = torch.zeros_like(t["reward"])
+        if bool(needed.any()):
+            rows = [t[k][needed] for k in ("next_robot", "next_humans", "next_mask")]
+            bootstrap[needed] = self.net.value(*rows)
+        return bootstrap
+
+    def episodes_done(self, episodes: int) -> None:
+        """A2C has no per-episode schedule."""
+
+    def policy(self, name: str) -> A2CPolicy:
+        return A2CPolicy(self.net, self.config.world, name)
+
+    def model_payload(self, info: dict[str, Any]) -> dict[str, Any]:
+        return {
+            "format": A2C_MODEL_FORMAT,
+            "a2c": {
+                k: list(v) if isinstance(v, tuple) else v for k, v in to_dict(self.params).items()
+            },
+            "world": to_dict(self.config.world),
+            "info": info,
+            "network": {k: v.cpu() for k, v in self.net.state_dict().items()},
+        }
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "network": self.net.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "generator": self.generator.get_state(),
+            "rollout": self.rollout,
+            "n_updates": self.n_updates,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.net.load_state_dict(state["network"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.generator.set_state(state["generator"])
+        self.rollout = list(state["rollout"])
+        self.n_updates = int(state["n_updates"])
+
+
+def load_a2c_payload(payload: dict[str, Any], path: Path) -> tuple[A2CPolicy, WorldConfig]:
+    """The greedy policy of an LSTM-A2C model file (format :data:`A2C_MODEL_FORMAT`)."""
+    if payload.get("format") != A2C_MODEL_FORMAT:
+        raise ValueError(
+            f"{path} is a {payload.get('format')!r} model file, not an LSTM-A2C model "
+            f"({A2C_MODEL_FORMAT}); load it with crowdplan.models.load_model_policy"
+        )
+    params = from_dict(A2CConfig, payload["a2c"], f"{path}: a2c")
+    world = WorldConfig.from_dict(payload["world"])
+    net = ActorCritic(params)
+    try:
+        net.load_state_dict(payload["network"])
+    except RuntimeError as error:
+        raise ValueError(f"weights in {path} do not match its a2c settings: {error}") from error
+    name = payload["info"].get("name", "lstm-a2c")
+    metadata = {"model": str(path), "algo": "a2c", "encoder": "lstm-rl", **payload["info"]}
+    return A2CPolicy(net.eval(), world, name, metadata), world

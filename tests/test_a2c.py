@@ -1,0 +1,248 @@
+"""LSTM-A2C: return maths, the encoder, determinism, exact resume, CLI, bad input."""
+
+import dataclasses
+import json
+import os
+import signal
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from crowdplan.algos.a2c import (
+    A2C_MODEL_FORMAT,
+    A2CAgent,
+    A2CPolicy,
+    load_a2c_payload,
+    n_step_returns,
+)
+from crowdplan.algos.base import Transitions
+from crowdplan.cli import main
+from crowdplan.models import load_model_policy
+from crowdplan.nets.lstm_rl import LSTMRLEncoder
+from crowdplan.sim.env import CrowdNavVectorEnv
+from crowdplan.training import Trainer, config_from_dict, load_config
+
+TINY = {
+    "name": "tiny_a2c",
+    "algo": "a2c",
+    "episodes": 6,
+    "num_envs": 2,
+    "val_interval": 1000,
+    "val_episodes": 2,
+    "checkpoint_interval": 1000,
+    "log_interval": 1000,
+    "test_episodes": 0,
+    "world": {"humans": 3, "time_limit": 4.0},
+    "a2c": {"n_steps": 7},  # does not divide the 16-step episodes: rollouts span episode ends
+}
+
+
+def _train(tmp_path, name, episodes=6, **changes):
+    config = dataclasses.replace(config_from_dict(TINY), episodes=episodes, **changes)
+    trainer = Trainer(config, tmp_path / name, progress=False)
+    trainer.run()
+    return trainer
+
+
+def _weights(trainer):
+    return torch.cat([p.detach().flatten() for p in trainer.agent.net.parameters()])
+
+
+# ------------------------------------------------------------------ maths
+def test_n_step_returns_on_a_hand_made_rollout():
+    # three envs, three steps, gamma 0.5; V(s'_t) = bootstrap[t]
+    rewards = torch.tensor([[1.0, 1.0, 1.0, 1.0], [2.0, 2.0, 2.0, 2.0], [3.0, 3.0, 3.0, 3.0]])
+    terminated = torch.tensor([[0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=torch.bool)
+    truncated = torch.tensor([[0, 0, 1, 0], [0, 0, 0, 0], [0, 0, 0, 1]], dtype=torch.bool)
+    bootstrap = torch.tensor([[99.0, 99.0, 4.0, 99.0], [99.0] * 4, [10.0, 10.0, 10.0, 10.0]])
+    returns = n_step_returns(rewards, terminated, truncated, bootstrap, gamma=0.5)
+    expected = torch.tensor(
+        [
+            # running on: 3 + 5 = 8, 2 + 4 = 6, 1 + 3 = 4
+            # env 1 terminates at step 1: G_1 = 2, nothing of step 2 (a new episode) leaks in
+            # env 2 is truncated at step 0: G_0 = 1 + 0.5 V(s'_0) = 1 + 2
+            # env 3 is terminated and truncated at its last step: terminated wins, G_2 = 3
+            [4.0, 2.0, 3.0, 1 + 0.5 * (2 + 0.5 * 3)],
+            [6.0, 2.0, 6.0, 2 + 0.5 * 3],
+            [8.0, 8.0, 8.0, 3.0],
+        ]
+    )
+    assert torch.allclose(returns, expected)
+
+
+def _agent(**a2c):
+    config = config_from_dict({**TINY, "a2c": {**TINY["a2c"], **a2c}})
+    return A2CAgent(config, torch.device("cpu")), config
+
+
+def test_update_bootstraps_on_truncation_and_last_step_only():
+    agent, config = _agent(n_steps=2, gamma=0.5)
+    env = CrowdNavVectorEnv(2, "circle_crossing", 3, time_limit=4.0)
+    obs, _ = env.reset(seed=7)
+    later, _ = env.reset(seed=8)  # any other states, as distinct successors
+    rewards = [np.array([1.0, 2.0], np.float32), np.array([3.0, 4.0], np.float32)]
+    # env 0: truncated at step 0, runs on at step 1; env 1: runs on, then terminates
+    flags = [
+        (np.array([False, False]), np.array([True, False])),
+        (np.array([False, True]), np.array([False, False])),
+    ]
+    for reward, (terminated, truncated) in zip(rewards, flags, strict=True):
+        actions = agent.act(obs, env.world)
+        agent.observe(Transitions(obs, actions, reward, later, terminated, truncated))
+    batch = {k: np.stack([s[k] for s in agent.rollout]) for k in agent.rollout[0]}
+    t = {k: torch.from_numpy(v) for k, v in batch.items()}
+    with torch.no_grad():
+        v_next = agent.net.value(*(t[k][0] for k in ("next_robot", "next_humans", "next_mask")))
+        v_now = agent.net.value(*(t[k].flatten(0, 1) for k in ("robot", "humans", "mask")))
+    bootstrap = agent._bootstrap(t)
+    # the two successors are the same states (``later``), so V(s'_t) is v_next for every step
+    assert torch.allclose(bootstrap[:, 0], v_next[0].expand(2))
+    assert bootstrap[0, 1] == 0.0 and bootstrap[1, 1] == 0.0  # runs on, then terminated
+    returns = n_step_returns(t["reward"], t["terminated"], t["truncated"], bootstrap, 0.5)
+    assert torch.allclose(returns[:, 0], torch.tensor([1 + 0.5 * v_next[0], 3 + 0.5 * v_next[0]]))
+    assert torch.allclose(returns[:, 1], torch.tensor([2 + 0.5 * 4.0, 4.0]))
+    # one gradient step, with the advantages G - V(s), clears the rollout
+    stats = agent.update()
+    assert stats is not None and agent.rollout == [] and agent.n_updates == 1
+    advantages = returns.flatten() - v_now
+    assert np.isfinite(stats["policy_loss"]) and advantages.abs().sum() > 0
+    assert stats["value_loss"] == pytest.approx(0.5 * float(advantages.pow(2).mean()), rel=1e-5)
+
+
+# ------------------------------------------------------------------ encoder
+def test_encoder_orders_by_distance_and_ignores_padding():
+    torch.manual_seed(0)
+    encoder = LSTMRLEncoder()
+    robot = torch.randn(2, 6)
+    humans = torch.randn(2, 4, 7)
+    humans[..., 5] = torch.rand(2, 4) * 5  # distances
+    mask = torch.tensor([[True, True, True, False], [True, True, False, False]])
+    out, scores = encoder(robot, humans, mask)
+    assert out.shape == (2, 56) and scores is None and torch.equal(out[:, :6], robot)
+    permuted = humans[:, [2, 0, 1, 3]]
+    garbage = humans.clone()
+    garbage[~mask] = float("nan")
+    assert torch.allclose(encoder(robot, permuted, mask[:, [2, 0, 1, 3]])[0], out, atol=1e-6)
+    assert torch.allclose(encoder(robot, garbage, mask)[0], out)
+    none, _ = encoder(robot, humans[:, :0], mask[:, :0])  # N = 0
+    assert torch.equal(none, torch.cat([robot, torch.zeros(2, 50)], dim=1))
+    # the closest human is read last: it moves the output more than the farthest one
+    base = humans[:1, :3].clone()
+    base[0, :, 5] = torch.tensor([3.0, 1.0, 2.0])
+    one = torch.ones(1, 3, dtype=torch.bool)
+    ref = encoder(robot[:1], base, one)[0]
+    moved = [base.clone(), base.clone()]
+    moved[0][0, 1, :2] += 0.5  # closest
+    moved[1][0, 0, :2] += 0.5  # farthest
+    diffs = [(encoder(robot[:1], m, one)[0] - ref).abs().sum() for m in moved]
+    assert diffs[0] > 0 and diffs[1] > 0
+
+
+def test_trains_without_humans(tmp_path):
+    config = config_from_dict({**TINY, "world": {"humans": 0, "time_limit": 4.0}})
+    trainer = Trainer(dataclasses.replace(config, episodes=2), tmp_path / "n0", progress=False)
+    trainer.run()
+    assert trainer.agent.n_updates > 0 and torch.isfinite(_weights(trainer)).all()
+
+
+# ------------------------------------------------------------------ determinism and resume
+def test_same_seed_twice_is_identical_and_another_seed_differs(tmp_path):
+    a, b = _train(tmp_path, "a"), _train(tmp_path, "b")
+    assert a.agent.n_updates > 0 and torch.equal(_weights(a), _weights(b))
+    clock = "train_seconds"
+    assert [{k: v for k, v in e.items() if k != clock} for e in a.episodes] == [
+        {k: v for k, v in e.items() if k != clock} for e in b.episodes
+    ]
+    assert not torch.equal(_weights(a), _weights(_train(tmp_path, "c", seed=1)))
+
+
+def test_sigterm_mid_rollout_and_resume_is_exact(tmp_path, monkeypatch):
+    straight = _train(tmp_path, "straight", episodes=6)
+    config = config_from_dict(TINY)
+    killed = Trainer(config, tmp_path / "killed", progress=False)
+    step, calls = killed._train_step, []
+
+    def step_then_signal():
+        step()
+        calls.append(1)
+        if len(calls) == 24:  # mid-episode (16 steps) and mid-rollout (7 steps)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(killed, "_train_step", step_then_signal)
+    assert killed.run() is False
+    assert len(killed.agent.rollout) == 24 % 7
+    resumed = Trainer(config, tmp_path / "killed", progress=False)
+    resumed.restore(tmp_path / "killed" / "checkpoint.pt")
+    assert len(resumed.agent.rollout) == 24 % 7
+    assert resumed.run() is True
+    assert torch.equal(_weights(straight), _weights(resumed))
+    assert resumed.agent.n_updates == straight.agent.n_updates
+    assert [e["seed"] for e in straight.episodes] == [e["seed"] for e in resumed.episodes]
+
+
+# ------------------------------------------------------------------ CLI and model files
+def test_train_eval_render_from_the_command_line(tmp_path):
+    data = {**TINY, "episodes": 4, "val_interval": 2, "val_episodes": 2, "test_episodes": 2}
+    config = tmp_path / "tiny.yaml"
+    config.write_text(yaml.safe_dump(data))
+    run = tmp_path / "run"
+    assert main(["train", "--config", str(config), "--out", str(run), "--no-progress"]) == 0
+    assert json.loads((run / "test" / "summary.json").read_text())["success_rate"]["value"] >= 0
+    resolved = yaml.safe_load((run / "config.yaml").read_text())
+    assert resolved["algo"] == "a2c" and resolved["a2c"]["n_steps"] == 7
+    assert (
+        main(["eval", "--model", str(run), "--episodes", "2", "--out", str(tmp_path / "ev")]) == 0
+    )
+    picture = tmp_path / "case.png"
+    assert main(["render", "--model", str(run), "--case", "0", "--out", str(picture)]) == 0
+    assert picture.stat().st_size > 0
+    policy, world = load_model_policy(str(run / "best_model.pt"))
+    assert isinstance(policy, A2CPolicy) and world.humans == 3
+    assert policy.metadata["algo"] == "a2c"
+
+
+def test_shipped_presets_load():
+    five, ten = load_config("configs/lstm_a2c.yaml"), load_config("configs/lstm_a2c_h10.yaml")
+    assert five.algo == ten.algo == "a2c"
+    assert (five.world.humans, ten.world.humans) == (5, 10)
+    assert ten.algo_config == five.algo_config
+
+
+# ------------------------------------------------------------------ bad input
+@pytest.mark.parametrize(
+    ("data", "fragment"),
+    [
+        ({**TINY, "dsac": {"batch_size": 16}}, "section(s) ['dsac'] belong to another algorithm"),
+        ({**TINY, "a2c": {"n_steps": 0}}, "a2c.n_steps must be >= 1, got 0"),
+        ({**TINY, "a2c": {"lr": "fast"}}, "a2c.lr must be a number, got 'fast'"),
+        ({**TINY, "a2c": {"batch_size": 16}}, "unknown key(s) ['batch_size'] in a2c"),
+        ({**TINY, "random_steps": 16}, "unknown key(s) ['random_steps'] in top level"),
+        ({**TINY, "algo": "dsac"}, "section(s) ['a2c'] belong to another algorithm"),
+    ],
+)
+def test_bad_config_is_explained(data, fragment):
+    with pytest.raises(ValueError) as error:
+        config_from_dict(data)
+    assert fragment in str(error.value)
+
+
+def test_model_of_another_algorithm_is_refused(tmp_path):
+    a2c = _train(tmp_path, "a2c", episodes=2)
+    payload = torch.load(a2c.run_dir / "final_model.pt", weights_only=True)
+    assert payload["format"] == A2C_MODEL_FORMAT
+    with pytest.raises(ValueError, match="not an LSTM-A2C model"):
+        load_a2c_payload({**payload, "format": "crowdplan-dsac-policy/1"}, tmp_path / "m.pt")
+    future = tmp_path / "future.pt"
+    torch.save({**payload, "format": "crowdplan-a2c-policy/9"}, future)
+    with pytest.raises(ValueError, match=r"known formats: .*crowdplan-a2c-policy/1 \(a2c\)"):
+        load_model_policy(str(future))
+    wrong = tmp_path / "wrong.pt"
+    torch.save({**payload, "a2c": {**payload["a2c"], "lstm_hidden": 20}}, wrong)
+    with pytest.raises(ValueError, match="do not match its a2c settings"):
+        load_model_policy(str(wrong))
+    # an A2C run folder cannot be resumed as a DSAC run
+    dsac = config_from_dict({**{k: v for k, v in TINY.items() if k != "a2c"}, "algo": "dsac"})
+    with pytest.raises(ValueError, match="different config"):
+        Trainer(dsac, a2c.run_dir, progress=False).restore(a2c.run_dir / "checkpoint.pt")
