@@ -33,7 +33,8 @@ def parse_options(items: list[str], own_flags: tuple[str, ...] = ()) -> dict:
         try:
             options[key] = yaml.safe_load(value)
         except yaml.YAMLError as error:
-            raise ValueError(f"world option {item!r}: cannot read the value ({error})") from None
+            why = getattr(error, "problem", None) or str(error).splitlines()[0]
+            raise ValueError(f"world option {item!r}: cannot read the value ({why})") from None
     return options
 
 
