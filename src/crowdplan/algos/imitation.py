@@ -160,7 +160,7 @@ def fit_values(
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
-            total += float(loss) * len(index)
+            total += float(loss.detach()) * len(index)
         mean_loss = total / n
         if log is not None:
             log(f"imitation learning epoch {epoch + 1}/{epochs}: loss {mean_loss:.5f}")

@@ -180,9 +180,7 @@ class ValueRLAgent:
             log("value_rl: il_episodes is 0, RL starts from the random initialisation")
             return None
         seeds = demonstration_seeds(p.il_episodes, self.config.seed)
-        demos = collect_demonstrations(
-            self.config.world, seeds, self.gamma_step, p.il_safety_space
-        )
+        demos = collect_demonstrations(self.config.world, seeds, self.gamma_step, p.il_safety_space)
         loss = fit_values(
             self.net, demos, p.il_epochs, p.il_lr, p.batch_size, self.generator, p.momentum, log
         )
@@ -243,7 +241,7 @@ class ValueRLAgent:
             self.optimizer.step()
             self.batch_credit -= 1
             self.n_updates += 1
-            stats = {"value_loss": float(loss), "epsilon": self.epsilon}
+            stats = {"value_loss": float(loss.detach()), "epsilon": self.epsilon}
         return stats
 
     def episodes_done(self, episodes: int) -> None:

@@ -18,6 +18,7 @@ humans (B, N, 7), mask (B, N) bool) and returns ``(value (B,), scores (B, N) or 
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from crowdplan.nets.encoders import (
@@ -104,13 +105,33 @@ class SARL(ValueNetwork):
         self.value = ValueHead(ROBOT_DIM + 50)
 
     def forward(self, robot: Tensor, humans: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
-        e = self.f_e(_pairs(robot, humans, mask))  # (B, N, 100)
+        # The layers' algebra is regrouped so that nothing is computed per human that can be
+        # computed per state (the lookahead evaluates 81 x N pairs per decision):
+        # f_e's first layer is W [s_r, o_i] = W_r s_r + W_o o_i; f_a's first layer on
+        # [e_i, mean] is W_e e_i + W_m mean; and f_h's last (linear) layer commutes with the
+        # attention-weighted sum. The first layers of f_a and f_h that read e_i run as one.
+        humans = humans.masked_fill(~mask.unsqueeze(-1), 0.0)
+        first, second = self.f_e[0], self.f_e[2]
+        x = F.linear(humans, first.weight[:, ROBOT_DIM:])
+        x = torch.relu(x + F.linear(robot, first.weight[:, :ROBOT_DIM], first.bias).unsqueeze(1))
+        e = torch.relu(second(x))  # (B, N, 100)
         weights = mask.unsqueeze(-1).to(e.dtype)
-        count = weights.sum(dim=1, keepdim=True).clamp(min=1.0)
-        mean = (e * weights).sum(dim=1, keepdim=True) / count
-        scores = self.f_a(torch.cat([e, mean.expand_as(e)], dim=-1)).squeeze(-1)
+        mean = (e * weights).sum(dim=1) / weights.sum(dim=1).clamp(min=1.0)
+        a_in, h_in = self.f_a[0], self.f_h[0]
+        width = a_in.out_features
+        joint = F.linear(
+            e,
+            torch.cat([a_in.weight[:, : e.shape[-1]], h_in.weight]),
+            torch.cat([a_in.bias, h_in.bias]),
+        )
+        a_hidden = torch.relu(
+            joint[..., :width] + F.linear(mean, a_in.weight[:, e.shape[-1] :]).unsqueeze(1)
+        )
+        scores = self.f_a[2:](a_hidden).squeeze(-1)
         attention = masked_softmax(scores, mask)
-        crowd = (attention.unsqueeze(-1) * self.f_h(e)).sum(dim=1)
+        pooled = (attention.unsqueeze(-1) * torch.relu(joint[..., width:])).sum(dim=1)
+        h_out = self.f_h[2]
+        crowd = F.linear(pooled, h_out.weight) + attention.sum(dim=1, keepdim=True) * h_out.bias
         return self.value(torch.cat([robot, crowd], dim=1)).squeeze(-1), attention
 
 

@@ -1,0 +1,59 @@
+"""Imitation learning from ORCA demonstrations."""
+
+import numpy as np
+import pytest
+import torch
+
+from crowdplan.algos.imitation import (
+    DEMO_SEED_BASE,
+    collect_demonstrations,
+    demonstration_seeds,
+    fit_values,
+)
+from crowdplan.algos.orca_planner import OrcaPlanner
+from crowdplan.config import WorldConfig
+from crowdplan.evaluation import run_episodes
+from crowdplan.nets.value import make_value_network
+
+GAMMA = 0.9**0.25
+
+
+def test_returns_are_the_discounted_rewards_of_an_orca_episode():
+    config = WorldConfig(humans=2)
+    seeds = demonstration_seeds(1, run_seed=0)
+    demos = collect_demonstrations(config, seeds, GAMMA)
+    (record,) = run_episodes(OrcaPlanner(config.dt, config.orca, 0.15), config, seeds)
+    assert len(demos) == record.steps and demos.outcomes == {record.outcome: 1}
+    assert demos.rewards.sum() == pytest.approx(record.total_reward, abs=1e-5)
+    t = np.arange(len(demos))
+    expected = [(GAMMA ** (t[k:] - k) * demos.rewards[k:]).sum() for k in t]
+    np.testing.assert_allclose(demos.returns, expected, rtol=1e-5, atol=1e-6)
+    assert demos.terminated[-1] == (record.outcome != "timeout") and not demos.terminated[:-1].any()
+    # s' of each step is the next row's s
+    np.testing.assert_array_equal(demos.next_states.robot[:-1], demos.states.robot[1:])
+
+
+def test_zero_demonstrations_is_refused():
+    with pytest.raises(ValueError, match="set il_episodes: 0 to skip"):
+        demonstration_seeds(0, run_seed=0)
+    with pytest.raises(ValueError, match="at least one"):
+        collect_demonstrations(WorldConfig(), [], GAMMA)
+
+
+def test_demonstration_seeds_avoid_every_other_split():
+    seeds = demonstration_seeds(3000, run_seed=2)
+    assert min(seeds) >= DEMO_SEED_BASE and seeds != demonstration_seeds(3000, run_seed=0)
+
+
+def test_imitation_learning_fits_orca_returns():
+    config = WorldConfig(humans=2)
+    demos = collect_demonstrations(config, demonstration_seeds(20, run_seed=0), GAMMA)
+    torch.manual_seed(0)
+    net = make_value_network("sarl")
+    generator = torch.Generator().manual_seed(0)
+    loss = fit_values(net, demos, epochs=40, lr=0.01, batch_size=100, generator=generator)
+    spread = float(np.var(demos.returns))
+    with torch.no_grad():
+        values, _ = net(*(torch.from_numpy(x) for x in demos.states))
+    mse = float(((values.numpy() - demos.returns) ** 2).mean())
+    assert loss < 0.2 * spread and mse < 0.2 * spread
