@@ -16,7 +16,7 @@ from crowdplan.config import WorldConfig
 from crowdplan.models import load_model_policy, load_payload
 from crowdplan.nets.encoders import masked_softmax
 from crowdplan.nets.value import VALUE_NETWORKS, make_value_network
-from crowdplan.training import Trainer, config_from_dict
+from crowdplan.training import Trainer, config_from_dict, load_config
 
 TINY = {
     "name": "tiny_sarl",
@@ -234,3 +234,19 @@ def test_cli_train_eval_render(tmp_path, capsys):
     png = tmp_path / "m.png"
     assert main(["render", "--model", str(run), "--case", "0", "--out", str(png)]) == 0
     assert png.stat().st_size > 0
+
+
+@pytest.mark.parametrize(
+    ("preset", "network", "humans"),
+    [
+        ("cadrl", "cadrl", 1),
+        ("lstm_rl", "lstm_rl", 5),
+        ("sarl", "sarl", 5),
+        ("lstm_rl_h10", "lstm_rl", 10),
+        ("sarl_h10", "sarl", 10),
+    ],
+)
+def test_presets_load(preset, network, humans):
+    config = load_config(f"configs/{preset}.yaml")
+    assert config.algo == "value_rl" and config.algo_config.network == network
+    assert config.world.humans == humans and config.algo_config.il_episodes == 3000
