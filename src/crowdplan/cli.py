@@ -325,12 +325,14 @@ def _silence_stdout() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``crowdplan`` console script; returns the exit status."""
     args = build_parser().parse_args(argv)
-    import torch
-
-    torch.set_num_threads(1)
     prog = f"crowdplan {args.command}"
     try:
-        return args.func(args)
+        import torch
+
+        torch.set_num_threads(1)
+        status = args.func(args)
+        sys.stdout.flush()  # a closed pipe shows here, where it is handled, not at exit
+        return status
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
