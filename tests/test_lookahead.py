@@ -1,6 +1,9 @@
 """The batched one-step lookahead equals stepping a copy of the world, action by action."""
 
 import copy
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -110,3 +113,14 @@ def test_action_values_add_the_discounted_value_of_non_terminal_candidates():
     np.testing.assert_allclose(q, expected, rtol=1e-5, atol=1e-6)
     assert cand.terminal[0].any()  # goal candidates are scored by their reward alone
     assert gamma == pytest.approx(0.9**0.25)
+
+
+def test_bench_lookahead_quick():
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_lookahead.py"
+    args = ["--quick", "--humans", "2", "--envs", "2"]
+    result = subprocess.run(
+        [sys.executable, str(script), *args], capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 0, result.stderr
+    row = next(line for line in result.stdout.splitlines() if line.startswith("| 2 | 2 |"))
+    assert float(row.split("|")[-2]) < 1e-5  # batched and reference action values agree

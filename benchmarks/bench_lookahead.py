@@ -1,0 +1,150 @@
+"""One greedy SARL decision (81-action one-step lookahead): batched against a CrowdNav-style loop.
+
+    python benchmarks/bench_lookahead.py [--quick] [--humans 5 10] [--envs 1 64] [--repeats 5]
+
+crowdplan: :func:`crowdplan.sim.lookahead.one_step` + :func:`~crowdplan.sim.lookahead.action_values`
+for E environments x 81 actions x N humans in one pass (numpy propagation, the world's reward, one
+SARL forward pass over E * 81 next states), then the argmax; ms per decision = time / E.
+
+Reference, the way CrowdNav's ``MultiHumanRL.predict`` does it (vita-epfl/CrowdNav,
+``crowd_nav/policy/multi_human_rl.py``): for each environment, for each of the 81 actions, the
+robot is propagated in Python, each human is propagated at constant velocity in a Python loop,
+the reward is computed in a Python loop over the humans, the joint state is rotated and the value
+network is called on that one state (batch 1). Both sides use the same SARL weights, the same
+reward definitions and the same features; their action values are checked to agree (printed).
+
+Times are this process's CPU time (``time.process_time``), steadier than wall-clock time when
+other work shares the machine; one torch thread. Output: stdout only.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import math  # noqa: E402
+import time  # noqa: E402
+from functools import partial  # noqa: E402
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from crowdplan.config import WorldConfig  # noqa: E402
+from crowdplan.features import robot_centric  # noqa: E402
+from crowdplan.nets.value import make_value_network  # noqa: E402
+from crowdplan.sim.actions import N_ACTIONS, action_table  # noqa: E402
+from crowdplan.sim.lookahead import action_values, one_step, step_discount  # noqa: E402
+from crowdplan.sim.world import (  # noqa: E402
+    COLLISION,
+    GOAL,
+    RUNNING,
+    World,
+    compute_reward,
+)
+
+
+def _observations(config: WorldConfig, envs: int) -> tuple[np.ndarray, ...]:
+    """Raw observations of ``envs`` environments, three steps into their episodes."""
+    world = World(config, envs)
+    world.reset(np.arange(envs) + 1000)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        world.step(rng.integers(0, N_ACTIONS, size=envs))
+    return world.observe()
+
+
+def batched(net, config, gamma, robot, humans, mask) -> np.ndarray:
+    """Action values (E, 81) of crowdplan's batched lookahead."""
+    return action_values(one_step(robot, humans, mask, config), net, gamma).numpy()
+
+
+def reference(net, config, gamma, robot, humans, mask) -> np.ndarray:
+    """Action values (E, 81), one Python propagation and one value call per action."""
+    table = action_table(config.robot_v_pref, config.kinematics, config.speed_sampling)
+    values = np.zeros((len(robot), N_ACTIONS))
+    dt = config.dt
+    for e in range(len(robot)):
+        px, py, _, _, r, gx, gy, v_pref, theta = robot[e]
+        for a, (speed, angle) in enumerate(table):
+            vx, vy = speed * math.cos(angle), speed * math.sin(angle)
+            next_robot = np.array([[px + vx * dt, py + vy * dt, vx, vy, r, gx, gy, v_pref, theta]])
+            next_humans = humans[e : e + 1].copy()
+            d_min = math.inf
+            for i in range(humans.shape[1]):
+                if not mask[e, i]:
+                    continue
+                hx, hy, hvx, hvy, hr = humans[e, i]
+                next_humans[0, i, 0:2] = hx + hvx * dt, hy + hvy * dt
+                sx, sy = hx - px, hy - py
+                ex, ey = sx + (hvx - vx) * dt, sy + (hvy - vy) * dt
+                seg_x, seg_y = ex - sx, ey - sy
+                seg_sq = seg_x * seg_x + seg_y * seg_y
+                u = min(max(-(sx * seg_x + sy * seg_y) / seg_sq, 0.0), 1.0) if seg_sq > 0 else 0.0
+                cx, cy = sx + u * seg_x, sy + u * seg_y
+                d_min = min(d_min, math.sqrt(cx * cx + cy * cy) - hr - r)
+            goal_dist = math.hypot(gx - next_robot[0, 0], gy - next_robot[0, 1])
+            outcome = COLLISION if d_min < 0 else GOAL if goal_dist < r else RUNNING
+            reward = float(
+                compute_reward(
+                    np.array(outcome), np.array(d_min), 1.0, goal_dist, config.discomfort_dist
+                )
+            )
+            feats = robot_centric(next_robot, next_humans, mask[e : e + 1])
+            with torch.no_grad():
+                value, _ = net(*(torch.from_numpy(x) for x in feats))
+            alive = outcome == RUNNING
+            values[e, a] = reward + (gamma * float(value) if alive else 0.0)
+    return values
+
+
+def _time(fn, repeats: int) -> float:
+    fn()  # warm-up
+    start = time.process_time()
+    for _ in range(repeats):
+        fn()
+    return (time.process_time() - start) / repeats
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--humans", type=int, nargs="+", default=[5, 10])
+    parser.add_argument("--envs", type=int, nargs="+", default=[1, 64])
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument(
+        "--reference-envs",
+        type=int,
+        default=4,
+        help="environments the reference is timed on (its cost is linear in E)",
+    )
+    parser.add_argument("--quick", action="store_true", help="one repeat, tiny sizes (smoke test)")
+    args = parser.parse_args()
+    if args.quick:
+        args.repeats, args.reference_envs = 1, 1
+    torch.set_num_threads(1)
+    torch.manual_seed(0)
+    net = make_value_network("sarl").eval()
+    print(f"torch {torch.__version__}, 1 thread; SARL, 81 actions, CPU time per decision")
+    print()
+    print("| N | E | crowdplan ms/decision | reference ms/decision | ratio | max abs diff |")
+    print("|---|---|---|---|---|---|")
+    for n in args.humans:
+        config = WorldConfig(humans=n, action_frame="world")
+        gamma = step_discount(0.9, config)
+        for envs in args.envs:
+            obs = _observations(config, envs)
+            fast = _time(partial(batched, net, config, gamma, *obs), args.repeats) / envs
+            k = min(envs, args.reference_envs)
+            sub = tuple(x[:k] for x in obs)
+            slow = _time(partial(reference, net, config, gamma, *sub), 1) / k
+            diff = np.abs(batched(net, config, gamma, *sub) - reference(net, config, gamma, *sub))
+            print(
+                f"| {n} | {envs} | {fast * 1e3:.3f} | {slow * 1e3:.2f} | {slow / fast:.0f}x "
+                f"| {diff.max():.1e} |"
+            )
+
+
+if __name__ == "__main__":
+    main()
