@@ -221,14 +221,22 @@ def test_ctrl_c_during_eval(tmp_path):
     assert not (tmp_path / "res").exists()
 
 
-def test_closed_pipe_is_quiet_and_results_are_kept(tmp_path):
-    out_dir = tmp_path / "res"
-    argv = _crowdplan("eval", "--episodes", "2", "--humans", "1", "-q", "--out", str(out_dir))
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["eval", "--episodes", "2", "--humans", "1", "-q", "--out", "{tmp}/res"],
+        ["report", str(ROOT / "results" / "orca")],
+    ],
+    ids=["eval", "report"],
+)
+def test_closed_pipe_is_quiet_and_results_are_kept(args, tmp_path):
+    argv = _crowdplan(*(a.format(tmp=tmp_path) for a in args))
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     proc.stdout.close()  # like `| head` having exited
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 141
-    assert err == "" and (out_dir / "summary.json").is_file()
+    assert err == ""
+    assert args[0] != "eval" or (tmp_path / "res" / "summary.json").is_file()
 
 
 # ------------------------------------------------------------ progress display
