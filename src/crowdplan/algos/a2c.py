@@ -29,6 +29,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from crowdplan.algos.base import Observation, Transitions
+from crowdplan.algos.dsac_agent import observation_features
 from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
 from crowdplan.features import robot_centric
 from crowdplan.nets.heads import PolicyHead, ValueHead
@@ -74,8 +75,8 @@ class A2CConfig:
         critic_hidden: hidden sizes of the critic MLP.
     """
 
-    gamma: float = spec(0.95, low=0.0, high=1.0)
-    lr: float = spec(5e-4, low=0.0, low_open=True)
+    gamma: float = spec(0.99, low=0.0, high=1.0)
+    lr: float = spec(1e-3, low=0.0, low_open=True)
     n_steps: int = spec(5, low=1)
     entropy_coef: float = spec(0.01, low=0.0)
     value_coef: float = spec(0.5, low=0.0)
@@ -171,23 +172,22 @@ class A2CAgent:
         self.n_updates = 0
         self._features: Any = None  # of the observation the last act() saw
 
-    def _features_of(self, obs: Observation) -> Any:
-        return robot_centric(obs["robot"], obs["humans"], obs["mask"].astype(bool), self.unicycle)
-
     def pretrain(self, log: Any) -> None:
         """A2C learns from its own experience only."""
         return None
 
     @torch.no_grad()
     def act(self, obs: Observation, world: Any) -> np.ndarray:
-        self._features = feats = self._features_of(obs)
+        self._features = feats = observation_features(obs, self.unicycle)
         logits, _ = self.net(*_tensors(feats, self.device))
         probs = torch.softmax(logits, dim=1)
         return torch.multinomial(probs, 1, generator=self.generator).squeeze(1).cpu().numpy()
 
     def observe(self, step: Transitions) -> None:
-        feats = self._features if self._features is not None else self._features_of(step.obs)
-        nxt = self._features_of(step.next_obs)
+        feats = self._features
+        if feats is None:
+            feats = observation_features(step.obs, self.unicycle)
+        nxt = observation_features(step.next_obs, self.unicycle)
         values = (
             *feats,
             np.asarray(step.actions, dtype=np.int64),

@@ -15,6 +15,7 @@ import torch
 
 from crowdplan.algos.a2c import A2C_MODEL_FORMAT, A2CAgent, A2CConfig, load_a2c_payload
 from crowdplan.algos.base import Agent
+from crowdplan.algos.dqn import DQN_MODEL_FORMAT, DQNAgent, DQNConfig, load_dqn_payload
 from crowdplan.algos.dsac import DSACConfig
 from crowdplan.algos.dsac_agent import DSACAgent
 from crowdplan.algos.value_rl import MODEL_FORMAT as VALUE_RL_MODEL_FORMAT
@@ -52,6 +53,7 @@ ALGORITHMS: dict[str, Algorithm] = {
     for algo in (
         Algorithm("dsac", DSACConfig, DSACAgent, DSAC_MODEL_FORMAT, load_dsac_payload),
         Algorithm("a2c", A2CConfig, A2CAgent, A2C_MODEL_FORMAT, load_a2c_payload),
+        Algorithm("dqn", DQNConfig, DQNAgent, DQN_MODEL_FORMAT, load_dqn_payload),
         Algorithm(
             "value_rl", ValueRLConfig, ValueRLAgent, VALUE_RL_MODEL_FORMAT, load_value_rl_payload
         ),
