@@ -77,9 +77,7 @@ class SocialForceConfig:
         check_fields(self, "social_force")
         for name in ("tau", "a", "b", "max_speed_factor"):
             _positive(f"social_force.{name}", getattr(self, name))
-        _require(
-            0.0 <= self.lam <= 1.0, f"social_force.lam must be in [0, 1], got {self.lam!r}"
-        )
+        _require(0.0 <= self.lam <= 1.0, f"social_force.lam must be in [0, 1], got {self.lam!r}")
 
 
 @dataclass(frozen=True)
