@@ -59,6 +59,23 @@ class DSACConfig:
             actor (fine-tuning); it must have the same encoder and action frame as the run.
         actor_warmup_updates: updates during which only the critic learns (policy and
             temperature frozen), so that a fresh critic does not undo an initialised policy.
+
+    Stabilisation options (docs/training.md), all off by default:
+        clip_q_targets: clip the soft target ``y`` to the reachable range
+            ``[return_min, return_max + alpha log(n_actions) gamma / (1 - gamma)]``: the
+            environment's return bounds, plus the most the entropy bonus can add (it is >= 0).
+        return_min, return_max: bounds of the discounted return from any state (used by
+            ``clip_q_targets``).
+        alpha_min: temperature floor; ``log alpha`` is clamped to ``log(alpha_min)`` after each
+            step (0: no floor).
+        alpha_lr: Adam learning rate of the temperature (0: ``lr``).
+        grad_clip_norm: clip the gradient norm of the critic and of the policy to this before
+            their steps (0: no clipping).
+        critic_layer_norm: layer norm before each hidden ReLU of the twin Q heads.
+        target_entropy_start_scale: with ``target_entropy_anneal_updates`` > 0, the target
+            entropy scale moves linearly from this value to ``target_entropy_scale`` over that
+            many updates, then stays there.
+        target_entropy_anneal_updates: length of that schedule in updates (0: constant target).
     """
 
     gamma: float = spec(0.95, low=0.0, high=1.0)
@@ -79,21 +96,37 @@ class DSACConfig:
     buffer_size: int = spec(200_000, low=1)
     init_model: str | None = None
     actor_warmup_updates: int = spec(0, low=0)
+    clip_q_targets: bool = False
+    return_min: float = -2.5
+    return_max: float = 1.5
+    alpha_min: float = spec(0.0, low=0.0)
+    alpha_lr: float = spec(0.0, low=0.0)
+    grad_clip_norm: float = spec(0.0, low=0.0)
+    critic_layer_norm: bool = False
+    target_entropy_start_scale: float = 0.98
+    target_entropy_anneal_updates: int = spec(0, low=0)
 
     # may change when a run resumes: bitwise the same training either way
     RESUME_MUTABLE: ClassVar[tuple[str, ...]] = ("parallel_update",)
 
     def __post_init__(self) -> None:
         check_fields(self, "dsac")
+        if self.return_min >= self.return_max:
+            raise ValueError(
+                f"dsac.return_min ({self.return_min}) must be below dsac.return_max "
+                f"({self.return_max})"
+            )
 
 
 class SoftQNetwork(nn.Module):
     """Critic: encoder + twin Q heads. ``forward(robot, humans, mask) -> (q1, q2)``, (B, A) each."""
 
-    def __init__(self, encoder: Encoder, n_actions: int, hidden: tuple[int, ...]):
+    def __init__(
+        self, encoder: Encoder, n_actions: int, hidden: tuple[int, ...], layer_norm: bool = False
+    ):
         super().__init__()
         self.encoder = encoder
-        self.head = QHead(encoder.out_dim, n_actions, hidden)
+        self.head = QHead(encoder.out_dim, n_actions, hidden, layer_norm)
 
     def forward(self, robot: Tensor, humans: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
         features, _ = self.encoder(robot, humans, mask)
@@ -144,7 +177,10 @@ class DSAC:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
             self.critic = SoftQNetwork(
-                make_encoder(encoder_config), config.n_actions, config.q_hidden
+                make_encoder(encoder_config),
+                config.n_actions,
+                config.q_hidden,
+                config.critic_layer_norm,
             )
             actor_encoder = (
                 self.critic.encoder if config.share_encoder else make_encoder(encoder_config)
@@ -158,7 +194,6 @@ class DSAC:
         self.log_alpha = torch.tensor(
             math.log(config.init_alpha), device=self.device, requires_grad=True
         )
-        self.target_entropy = config.target_entropy_scale * math.log(config.n_actions)
 
         actor_params = self.actor.head if config.share_encoder else self.actor
         # One Adam per half of the update, so that each half can take its step on its own thread.
@@ -168,12 +203,14 @@ class DSAC:
         self.actor_optimizer = torch.optim.Adam(
             [
                 {"params": list(actor_params.parameters()), "name": "actor"},
-                {"params": [self.log_alpha], "name": "alpha"},
+                {"params": [self.log_alpha], "name": "alpha", "lr": config.alpha_lr or config.lr},
             ],
             lr=config.lr,
             fused=True,
         )
         self._critic_params = list(self.critic.parameters())
+        self._actor_params = list(actor_params.parameters())
+        self._log_alpha_min = math.log(config.alpha_min) if config.alpha_min > 0 else None
         self._target_params = list(self.critic_target.parameters())
         self._worker = ThreadPoolExecutor(1) if config.parallel_update else None
         self.n_updates = 0
@@ -182,6 +219,18 @@ class DSAC:
     def alpha(self) -> float:
         """Current temperature."""
         return float(self.log_alpha.detach().exp())
+
+    @property
+    def target_entropy(self) -> float:
+        """Target entropy of the next update: ``scale * log(n_actions)``, the scale following
+        the schedule of ``target_entropy_anneal_updates``."""
+        config = self.config
+        scale = config.target_entropy_scale
+        if self.n_updates < config.target_entropy_anneal_updates:
+            progress = self.n_updates / config.target_entropy_anneal_updates
+            start = config.target_entropy_start_scale
+            scale = start + (scale - start) * progress
+        return scale * math.log(config.n_actions)
 
     @torch.no_grad()
     def act(
@@ -286,6 +335,8 @@ class DSAC:
                 ).sum(dim=1)
                 # dones are terminations only; truncated (timeout) transitions bootstrap
                 next_q_value = rewards + self.config.gamma * (1.0 - dones) * min_qf_next_target
+                if self.config.clip_q_targets:
+                    next_q_value = next_q_value.clamp(*self._target_range(alpha))
             qf1_a_values = qf1_values.gather(1, actions.unsqueeze(1)).squeeze(1)
             qf2_a_values = qf2_values.gather(1, actions.unsqueeze(1)).squeeze(1)
             qf1_loss = F.mse_loss(qf1_a_values, next_q_value)
@@ -301,8 +352,18 @@ class DSAC:
             self._step_critic()
         return qf1_loss.detach(), qf2_loss.detach(), qf_loss.detach(), qf1_a_values.mean().detach()
 
+    def _target_range(self, alpha: Tensor) -> tuple[float, float]:
+        """Reachable soft targets: the return bounds, plus the entropy bonus's largest sum."""
+        config = self.config
+        if config.gamma >= 1.0:
+            return config.return_min, math.inf
+        bonus = float(alpha) * math.log(config.n_actions) * config.gamma / (1.0 - config.gamma)
+        return config.return_min, config.return_max + bonus
+
     def _step_critic(self) -> None:
         """Adam step of the critic, then ``target <- target + tau (critic - target)``."""
+        if self.config.grad_clip_norm > 0:
+            nn.utils.clip_grad_norm_(self._critic_params, self.config.grad_clip_norm)
         self.critic_optimizer.step()
         with torch.no_grad():
             torch._foreach_lerp_(self._target_params, self._critic_params, self.config.tau)
@@ -334,7 +395,12 @@ class DSAC:
         if self.n_updates < self.config.actor_warmup_updates:
             return actor_loss.detach(), alpha_loss.detach(), entropy.mean()
         (actor_loss + (alpha_loss if self.config.autotune_alpha else 0.0)).backward()
+        if self.config.grad_clip_norm > 0:
+            nn.utils.clip_grad_norm_(self._actor_params, self.config.grad_clip_norm)
         self.actor_optimizer.step()
+        if self._log_alpha_min is not None:
+            with torch.no_grad():
+                self.log_alpha.clamp_(min=self._log_alpha_min)
         return actor_loss.detach(), alpha_loss.detach(), entropy.mean()
 
     def state_dict(self) -> dict[str, Any]:

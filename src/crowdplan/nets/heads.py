@@ -8,16 +8,37 @@ from crowdplan.nets.encoders import mlp
 
 
 class QHead(nn.Module):
-    """Twin Q heads (clipped double Q): two independent MLPs in_dim -> 128 -> 128 -> n_actions."""
+    """Twin Q heads (clipped double Q): two independent MLPs in_dim -> 128 -> 128 -> n_actions.
 
-    def __init__(self, in_dim: int, n_actions: int = 81, hidden: tuple[int, ...] = (128, 128)):
+    ``layer_norm`` puts a LayerNorm before each hidden ReLU, which bounds the features the last
+    layer sees (a common remedy for diverging critics).
+    """
+
+    def __init__(
+        self,
+        in_dim: int,
+        n_actions: int = 81,
+        hidden: tuple[int, ...] = (128, 128),
+        layer_norm: bool = False,
+    ):
         super().__init__()
-        self.q1 = mlp([in_dim, *hidden, n_actions])
-        self.q2 = mlp([in_dim, *hidden, n_actions])
+        make = _layer_norm_mlp if layer_norm else mlp
+        self.q1 = make([in_dim, *hidden, n_actions])
+        self.q2 = make([in_dim, *hidden, n_actions])
 
     def forward(self, features: Tensor) -> tuple[Tensor, Tensor]:
         """Return ``(q1, q2)``, each (B, n_actions)."""
         return self.q1(features), self.q2(features)
+
+
+def _layer_norm_mlp(sizes: list[int]) -> nn.Sequential:
+    """Linear layers with LayerNorm + ReLU after each hidden one."""
+    layers: list[nn.Module] = []
+    for i in range(len(sizes) - 1):
+        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
+        if i < len(sizes) - 2:
+            layers += [nn.LayerNorm(sizes[i + 1]), nn.ReLU()]
+    return nn.Sequential(*layers)
 
 
 class PolicyHead(nn.Module):

@@ -1,0 +1,191 @@
+"""DSAC stabilisation options: each does what it says, all are off by default, and the two-thread
+update stays bitwise identical to the serial one with every option on."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from torch import nn
+
+from crowdplan.algos import dsac as dsac_module
+from crowdplan.algos.dsac import DSAC, DSACConfig
+from crowdplan.nets.encoders import EncoderConfig
+from crowdplan.nets.heads import QHead
+from tests.test_dsac import small_batch
+
+ENCODER = EncoderConfig(name="aw", max_humans=3)
+ALL_ON = {
+    "clip_q_targets": True,
+    "alpha_min": 0.1,
+    "alpha_lr": 1e-3,
+    "grad_clip_norm": 0.5,
+    "critic_layer_norm": True,
+    "target_entropy_start_scale": 0.9,
+    "target_entropy_anneal_updates": 3,
+}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+def test_every_option_is_off_by_default():
+    config = DSACConfig()
+    assert not config.clip_q_targets and not config.critic_layer_norm
+    assert config.alpha_min == 0 and config.alpha_lr == 0 and config.grad_clip_norm == 0
+    assert config.target_entropy_anneal_updates == 0
+    agent = DSAC(config, ENCODER)
+    assert not any(isinstance(m, nn.LayerNorm) for m in agent.critic.modules())
+
+
+def _targets_seen(monkeypatch, agent: DSAC, batch) -> torch.Tensor:
+    """The soft targets y of one update (the second argument of the critic's MSE)."""
+    seen = []
+    original = dsac_module.F.mse_loss
+
+    def spy(prediction, target, *args, **kwargs):
+        seen.append(target.detach().clone())
+        return original(prediction, target, *args, **kwargs)
+
+    monkeypatch.setattr(dsac_module.F, "mse_loss", spy)
+    agent.update(batch)
+    monkeypatch.setattr(dsac_module.F, "mse_loss", original)
+    return seen[0]
+
+
+def test_q_targets_are_clipped_to_the_reachable_range(monkeypatch):
+    batch = small_batch(seed=3)
+    batch["reward"] = torch.linspace(-50.0, 50.0, len(batch["reward"]))
+    free = _targets_seen(monkeypatch, DSAC(DSACConfig(), ENCODER), batch)
+    assert free.min() < -2.5 and free.max() > 20.0  # far outside any return
+
+    config = DSACConfig(clip_q_targets=True, return_min=-2.0, return_max=1.0)
+    agent = DSAC(config, ENCODER)
+    alpha = agent.alpha
+    clipped = _targets_seen(monkeypatch, agent, batch)
+    entropy_bonus = alpha * math.log(81) * 0.95 / 0.05
+    assert clipped.min() == pytest.approx(-2.0)
+    assert clipped.max() == pytest.approx(1.0 + entropy_bonus)
+    inside = (free > -2.0) & (free < 1.0 + entropy_bonus)
+    assert torch.equal(clipped[inside], free[inside])  # targets in range are untouched
+
+
+def test_alpha_never_goes_below_its_floor():
+    # a fresh policy is near uniform, above the target entropy: alpha falls fast at this rate
+    agent = DSAC(DSACConfig(alpha_min=0.15, alpha_lr=0.05), ENCODER)
+    alphas = [agent.update(small_batch(seed=i)) and agent.alpha for i in range(20)]
+    assert min(alphas) >= 0.15 * (1 - 1e-6)
+    assert alphas[-1] == pytest.approx(0.15)
+    free = DSAC(DSACConfig(alpha_lr=0.05), ENCODER)
+    for i in range(20):
+        free.update(small_batch(seed=i))
+    assert free.alpha < 0.15
+
+
+def test_temperature_has_its_own_learning_rate():
+    # Adam's first step moves a parameter by its learning rate (up to eps)
+    for alpha_lr, expected in ((0.0, 3e-4), (0.02, 0.02)):
+        agent = DSAC(DSACConfig(alpha_lr=alpha_lr), ENCODER)
+        before = float(agent.log_alpha.detach())
+        agent.update(small_batch())
+        assert abs(float(agent.log_alpha.detach()) - before) == pytest.approx(expected, rel=1e-3)
+        groups = {g["name"]: g["lr"] for g in agent.actor_optimizer.param_groups}
+        assert groups == {"actor": 3e-4, "alpha": expected}
+
+
+def test_gradient_norms_are_clipped_before_each_step(monkeypatch):
+    agent = DSAC(DSACConfig(grad_clip_norm=1e-3), ENCODER)
+    norms: dict[str, float] = {}
+
+    def recorder(name, params, step):
+        def record(*args, **kwargs):
+            grads = [p.grad for p in params if p.grad is not None]
+            norms[name] = float(torch.linalg.vector_norm(torch.stack([g.norm() for g in grads])))
+            return step(*args, **kwargs)
+
+        return record
+
+    critic_step = agent.critic_optimizer.step
+    actor_step = agent.actor_optimizer.step
+    actor_params = list(agent.actor.parameters())
+    monkeypatch.setattr(
+        agent.critic_optimizer, "step", recorder("critic", agent._critic_params, critic_step)
+    )
+    monkeypatch.setattr(agent.actor_optimizer, "step", recorder("actor", actor_params, actor_step))
+    agent.update(small_batch())
+    assert norms["critic"] == pytest.approx(1e-3, rel=1e-3)
+    assert norms["actor"] == pytest.approx(1e-3, rel=1e-3)
+
+
+def test_layer_norm_normalises_the_q_heads_hidden_features():
+    head = QHead(56, 81, (128, 128), layer_norm=True)
+    features = torch.randn(32, 56) * 100
+    hidden = head.q1[:2](features)  # Linear -> LayerNorm
+    torch.testing.assert_close(hidden.mean(dim=1), torch.zeros(32), atol=1e-5, rtol=0)
+    torch.testing.assert_close(hidden.std(dim=1, unbiased=False), torch.ones(32), atol=1e-3, rtol=0)
+    assert sum(isinstance(m, nn.LayerNorm) for m in head.modules()) == 4  # 2 per twin head
+    q1, q2 = head(features)
+    assert q1.shape == q2.shape == (32, 81)
+
+
+def test_target_entropy_follows_a_linear_schedule():
+    config = DSACConfig(
+        target_entropy_start_scale=0.98,
+        target_entropy_scale=0.5,
+        target_entropy_anneal_updates=10,
+    )
+    agent = DSAC(config, ENCODER)
+    scales = []
+    for n in (0, 5, 10, 50):
+        agent.n_updates = n
+        scales.append(agent.target_entropy / math.log(81))
+    assert scales == pytest.approx([0.98, 0.74, 0.5, 0.5])
+    assert DSAC(DSACConfig(), ENCODER).target_entropy == pytest.approx(0.98 * math.log(81))
+
+
+@pytest.mark.parametrize("share_encoder", [False, True])
+def test_two_thread_update_is_bitwise_identical_with_every_option(share_encoder):
+    serial = DSAC(DSACConfig(share_encoder=share_encoder, **ALL_ON), ENCODER, seed=4)
+    parallel = DSAC(
+        DSACConfig(share_encoder=share_encoder, parallel_update=True, **ALL_ON), ENCODER, seed=4
+    )
+    for step in range(5):
+        batch = small_batch(seed=step)
+        batch["reward"] = batch["reward"] * 30  # some targets outside the range
+        assert serial.update(batch) == parallel.update(batch)
+    for net in ("actor", "critic", "critic_target"):
+        for p, q in zip(
+            getattr(serial, net).parameters(), getattr(parallel, net).parameters(), strict=True
+        ):
+            assert torch.equal(p, q)
+    assert torch.equal(serial.log_alpha, parallel.log_alpha)
+
+
+@pytest.mark.parametrize(
+    ("changes", "fragment"),
+    [
+        ({"alpha_min": -0.1}, "dsac.alpha_min must be >= 0.0"),
+        ({"grad_clip_norm": -1.0}, "dsac.grad_clip_norm must be >= 0.0"),
+        ({"target_entropy_anneal_updates": -5}, "dsac.target_entropy_anneal_updates must be"),
+        ({"return_min": 2.0, "return_max": 1.0}, "dsac.return_min (2.0) must be below"),
+    ],
+)
+def test_bad_option_values_are_refused(changes, fragment):
+    with pytest.raises(ValueError) as error:
+        DSACConfig(**changes)
+    assert fragment in str(error.value)
+
+
+def test_stable_preset_loads_with_every_option_on():
+    from crowdplan.training import load_config
+
+    params = load_config("configs/lsa_dsac_stable.yaml").algo_config
+    assert params.clip_q_targets and params.critic_layer_norm
+    assert params.alpha_min > 0 and params.alpha_lr > 0 and params.grad_clip_norm > 0
+    assert params.target_entropy_anneal_updates > 0
