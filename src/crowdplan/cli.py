@@ -99,8 +99,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
     seeds = evaluation.SPLITS[args.split].seeds(args.episodes)
     if args.batch_size < 1:
         raise ValueError(f"--batch-size must be >= 1, got {args.batch_size}")
+    if args.record and not args.out:
+        raise ValueError("--record needs --out DIR (the folder that gets records.npz)")
     if args.out:
-        check_output_folder(args.out, RESULT_FILES, args.force)
+        files = RESULT_FILES + (("records.npz",) if args.record else ())
+        check_output_folder(args.out, files, args.force)
     policy, base = load_policy(args.policy, args.model)
     config = _world_config(args, policy, base)
 
@@ -117,15 +120,26 @@ def cmd_eval(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     with Progress(len(seeds), f"eval {policy.name}", quiet=args.quiet) as progress:
         evaluation.run_episodes(
-            policy, config, seeds, batch_size=args.batch_size, on_batch=report_batch
+            policy,
+            config,
+            seeds,
+            batch_size=args.batch_size,
+            record_traces=args.record,
+            on_batch=report_batch,
         )
     elapsed = time.perf_counter() - start
     summary = evaluation.summarize(records, config)
     if args.out:
         meta = run_metadata(policy, config, seeds, args.split)
         meta["wall_seconds"] = elapsed
+        if args.record:
+            from crowdplan.evaluation_records import write_records
+
+            write_records(Path(args.out) / "records.npz", records)
         evaluation.write_results(args.out, summary, records, meta)
         note = f"wrote {Path(args.out) / 'summary.json'} and {Path(args.out) / 'episodes.jsonl'}"
+        if args.record:
+            note += f" and {Path(args.out) / 'records.npz'}"
     else:
         note = "nothing written (no --out): pass --out DIR to keep summary.json and episodes.jsonl"
     title = (
@@ -214,6 +228,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="folder for summary.json and episodes.jsonl, made if missing "
         "(default: none, only the table is printed)",
+    )
+    p.add_argument(
+        "--record",
+        action="store_true",
+        help="also write records.npz: every episode's trajectory, actions, d_min and attention "
+        "(docs/report.md)",
     )
     _add_output_args(p, "summary.json and episodes.jsonl")
     p.set_defaults(func=cmd_eval)

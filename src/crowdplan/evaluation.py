@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +18,7 @@ from crowdplan.config import WorldConfig
 from crowdplan.io import write_json, write_jsonl
 from crowdplan.policy import Policy
 from crowdplan.sim.world import OUTCOME_NAMES, RUNNING, World
+from crowdplan.social_metrics import episode_metrics, linear_jerk
 
 TEST_SEED_BASE, TEST_CASES = 1000, 500
 VAL_SEED_BASE, VAL_CASES = 0, 100
@@ -84,6 +85,10 @@ class Trace:
     human_radius: np.ndarray  # (N,)
     scores: np.ndarray | None  # (T, N) per-human scores (attention) at each step
     dt: float
+    human_vel: np.ndarray | None = None  # (T+1, N, 2) velocity each human had at each state
+    human_present: np.ndarray | None = None  # (T+1, N) False: absent (masked) human
+    actions: np.ndarray | None = None  # (T,) action indices or (T, 2) velocity commands
+    d_min: np.ndarray | None = None  # (T,) swept d_min of each step
 
 
 @dataclass
@@ -102,6 +107,12 @@ class EpisodeRecord:
     discomfort_steps: int
     discomfort_distance_sum: float  # sum of d_min over discomfort steps
     jerk: float  # mean |change of acceleration| (m/s^3) over the episode
+    # Social metrics (crowdplan.social_metrics); nan when the episode's trajectory is unknown.
+    path_irregularity: float = math.nan
+    angular_jerk: float = math.nan
+    personal_space_intrusion: float = math.nan
+    min_ttc: float = math.nan  # inf (null in JSON) when never on a collision course
+    mean_human_distance: float = math.nan
     trace: Trace | None = field(default=None, repr=False)
 
     def to_json(self) -> dict:
@@ -109,6 +120,32 @@ class EpisodeRecord:
         row.pop("trace")
         row["min_distance"] = None if math.isinf(self.min_distance) else self.min_distance
         return row
+
+    @classmethod
+    def from_json(cls, row: dict) -> EpisodeRecord:
+        """The record of one ``episodes.jsonl`` line (null: inf for distances and times to
+        collision, nan for a social metric the line does not have)."""
+        names = {f.name for f in fields(cls)} - {"trace"}
+        unknown = set(row) - names
+        if unknown:
+            raise ValueError(f"unknown field(s) {', '.join(sorted(unknown))}")
+        values = dict(row)
+        for key in ("min_distance", "min_ttc"):
+            if key in values and values[key] is None:
+                values[key] = math.inf
+        for key in names - set(values):
+            if key not in _SOCIAL:
+                raise ValueError(f"field {key!r} is missing")
+        return cls(**{k: math.nan if v is None else v for k, v in values.items()})
+
+
+_SOCIAL = (
+    "path_irregularity",
+    "angular_jerk",
+    "personal_space_intrusion",
+    "min_ttc",
+    "mean_human_distance",
+)
 
 
 def run_episodes(
@@ -141,17 +178,21 @@ def _run_batch(policy, config: WorldConfig, seeds, record_traces) -> list[Episod
     e = len(seeds)
     active = np.ones(e, dtype=bool)
     outcome = np.full(e, RUNNING)
-    rewards, d_mins, vels = [], [], []
-    robot_pos, human_pos, scores = [world.robot_pos.copy()], [world.human_pos.copy()], []
+    rewards, d_mins, vels, actions, scores = [], [], [], [], []
+    robot_pos, human_pos = [world.robot_pos.copy()], [world.human_pos.copy()]
+    human_vel, present = [world.human_vel.copy()], [world.human_present.copy()]
     while active.any():
         out = policy.act(*world.observe())
         result = world.step(out.actions, active)
         rewards.append(result.reward)
         d_mins.append(np.where(active, result.d_min, np.nan))
         vels.append(np.where(active[:, None], world.robot_vel, np.nan))
+        robot_pos.append(world.robot_pos.copy())
+        human_pos.append(world.human_pos.copy())
+        human_vel.append(world.human_vel.copy())
+        present.append(world.human_present.copy())
         if record_traces:
-            robot_pos.append(world.robot_pos.copy())
-            human_pos.append(world.human_pos.copy())
+            actions.append(np.asarray(out.actions).copy())
             scores.append(out.scores)
         outcome = np.where(active, result.outcome, outcome)
         active &= result.outcome == RUNNING
@@ -159,19 +200,24 @@ def _run_batch(policy, config: WorldConfig, seeds, record_traces) -> list[Episod
     records = []
     for k, seed in enumerate(seeds):
         steps = int(world.steps[k])
-        trace = None
+        trace = Trace(
+            robot_pos=np.array([p[k] for p in robot_pos[: steps + 1]]),
+            robot_vel=vel_arr[:steps, k],
+            robot_goal=world.robot_goal[k].copy(),
+            robot_radius=config.robot_radius,
+            human_pos=np.array([p[k] for p in human_pos[: steps + 1]]),
+            human_goal=world.human_goal[k].copy(),
+            human_radius=world.human_radius[k].copy(),
+            scores=None,
+            dt=config.dt,
+            human_vel=np.array([v[k] for v in human_vel[: steps + 1]]),
+            human_present=np.array([m[k] for m in present[: steps + 1]]),
+            d_min=d_min_arr[:steps, k],
+        )
         if record_traces:
-            trace = Trace(
-                robot_pos=np.array([p[k] for p in robot_pos[: steps + 1]]),
-                robot_vel=vel_arr[:steps, k],
-                robot_goal=world.robot_goal[k].copy(),
-                robot_radius=config.robot_radius,
-                human_pos=np.array([p[k] for p in human_pos[: steps + 1]]),
-                human_goal=world.human_goal[k].copy(),
-                human_radius=world.human_radius[k].copy(),
-                scores=None if scores[0] is None else np.array([s[k] for s in scores[:steps]]),
-                dt=config.dt,
-            )
+            trace.actions = np.array([a[k] for a in actions[:steps]])
+            if scores[0] is not None:
+                trace.scores = np.array([s[k] for s in scores[:steps]])
         records.append(
             episode_record(
                 seed,
@@ -182,6 +228,7 @@ def _run_batch(policy, config: WorldConfig, seeds, record_traces) -> list[Episod
                 world.start_dist[k],
                 config,
                 trace,
+                keep_trace=record_traces,
             )
         )
     return records
@@ -196,8 +243,13 @@ def episode_record(
     start_dist: float,
     config: WorldConfig,
     trace: Trace | None = None,
+    keep_trace: bool = True,
 ) -> EpisodeRecord:
-    """Reduce one episode's per-step arrays to its record."""
+    """Reduce one episode's per-step arrays to its record.
+
+    The social metrics need ``trace`` with human velocities (nan without); the record keeps the
+    trace unless ``keep_trace`` is False.
+    """
     steps = len(rewards)
     t = np.arange(steps)
     discount = REPORT_GAMMA ** (t * config.dt * config.robot_v_pref)
@@ -205,10 +257,7 @@ def episode_record(
     path_length = float(np.hypot(robot_vel[:, 0], robot_vel[:, 1]).sum() * config.dt)
     success = outcome == "goal"
     spl = float(start_dist / max(path_length, start_dist)) if success else 0.0
-    jerk = 0.0
-    if steps >= 3:
-        accel = np.diff(np.vstack([np.zeros(2), robot_vel]), axis=0) / config.dt
-        jerk = float(np.hypot(*np.diff(accel, axis=0).T).mean() / config.dt)
+    social = {} if trace is None or trace.human_vel is None else episode_metrics(trace)
     return EpisodeRecord(
         seed=int(seed),
         outcome=outcome,
@@ -221,8 +270,9 @@ def episode_record(
         min_distance=float(np.min(d_min)) if d_min.size else math.inf,
         discomfort_steps=int(discomfort.sum()),
         discomfort_distance_sum=float(d_min[discomfort].sum()),
-        jerk=jerk,
-        trace=trace,
+        jerk=linear_jerk(robot_vel, config.dt),
+        **social,
+        trace=trace if keep_trace else None,
     )
 
 
@@ -311,8 +361,18 @@ def summarize(records: list[EpisodeRecord], config: WorldConfig | None = None) -
         "spl": mean([r.spl for r in records], 0.0, 1.0),
         "min_distance": mean([r.min_distance for r in records if math.isfinite(r.min_distance)]),
         "jerk": mean([r.jerk for r in records], 0.0),
+        "path_irregularity": mean(_known(records, "path_irregularity"), 0.0, math.pi),
+        "angular_jerk": mean(_known(records, "angular_jerk"), 0.0),
+        "personal_space_intrusion": mean(_known(records, "personal_space_intrusion"), 0.0, 1.0),
+        "min_ttc": mean(_known(records, "min_ttc"), 0.0),
+        "mean_human_distance": mean(_known(records, "mean_human_distance")),
     }
     return summary
+
+
+def _known(records: list[EpisodeRecord], key: str) -> list[float]:
+    """The finite values of one per-episode metric (unknown and infinite ones left out)."""
+    return [v for r in records if math.isfinite(v := getattr(r, key))]
 
 
 METRIC_ROWS = [
@@ -326,6 +386,11 @@ METRIC_ROWS = [
     ("path_length", "path length (m)"),
     ("spl", "SPL"),
     ("jerk", "jerk (m/s^3)"),
+    ("angular_jerk", "ang. jerk (rad/s^3)"),
+    ("path_irregularity", "path irreg. (rad)"),
+    ("personal_space_intrusion", "personal space intr."),
+    ("min_ttc", "min TTC (s)"),
+    ("mean_human_distance", "mean human gap (m)"),
 ]
 
 
