@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 BIN := $(VENV)/bin
 DEMO := runs/demo
 
-.PHONY: setup demo test format bench publish ship results-doc results-orca
+.PHONY: setup demo test format bench publish ship results-doc results-orca records report
 
 setup: $(VENV)/.installed
 
@@ -50,6 +50,24 @@ ship:
 
 # Regenerate every table of docs/results.md from the committed result folders.
 results-doc: setup
+	$(BIN)/crowdplan report --fill docs/results.md
+
+# Trajectory records (crowdplan eval --record) of the 500 test cases that the report's strategy and
+# attention analyses read: shipped models, ORCA, the blind baseline and two encoder runs on
+# circle_crossing; the paper-faithful model and ORCA also on square_crossing.
+RECORD_CIRCLE := --model=lsa-dsac --model=lsa-dsac-paper-goal --policy=orca --policy=straight \
+	--model=results/train/rg_dsac_ent05-s0 --model=results/train/sa_dsac_ent05-s0
+RECORD_SQUARE := --model=lsa-dsac --policy=orca
+records: setup
+	for p in $(RECORD_CIRCLE); do $(BIN)/crowdplan eval $$p --episodes 500 --record --force -q \
+		--out results/records/circle/$$(basename $${p#*=}) > /dev/null || exit 1; done
+	for p in $(RECORD_SQUARE); do $(BIN)/crowdplan eval $$p --episodes 500 --record --force -q \
+		--scenario square_crossing --out results/records/square/$$(basename $${p#*=}) > /dev/null || exit 1; done
+
+# The evaluation report (docs/report.md): an HTML page with every table and figure, from the
+# committed result folders; then the tables of docs/results.md.
+report: setup
+	$(BIN)/crowdplan report --out docs/report
 	$(BIN)/crowdplan report --fill docs/results.md
 
 results-orca: setup
