@@ -83,7 +83,7 @@ def main() -> None:
     print(
         f"torch {torch.__version__}, threads={base.torch_threads}, config={args.config}, "
         f"seed={args.seed}, {args.episodes} episodes from scratch (random actions for the first "
-        f"{base.random_steps} transitions); identical episodes in both runs: yes\n"
+        f"{base.algo_config.random_steps} transitions); identical episodes in both runs: yes\n"
     )
     print("| update | episodes | env steps | updates | train s | h / 10k episodes | speed-up |")
     print("|---|---:|---:|---:|---:|---:|---:|")

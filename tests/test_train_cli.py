@@ -16,7 +16,7 @@ TINY = {
     "checkpoint_interval": 2,
     "log_interval": 2,
     "test_episodes": 0,
-    "world": {"humans": 2, "time_limit": 2.0},
+    "world": {"humans": 2, "time_limit": 2.0, "action_frame": "world"},
     "encoder": {"name": "aw"},
     "dsac": {"batch_size": 8, "random_steps": 8, "learning_starts": 8},
 }
@@ -74,3 +74,18 @@ def test_new_run_refuses_a_folder_with_unrelated_files(finished_run, tmp_path, c
 def test_resume_without_checkpoint_is_explained(tmp_path, capsys):
     assert main(["train", "--out", str(tmp_path), "--resume"]) == 2
     assert "holds no checkpoint.pt" in capsys.readouterr().err
+
+
+def test_runs_from_before_the_action_frame_option_resume_in_the_world_frame(finished_run, tmp_path):
+    _, run = finished_run
+    old = tmp_path / "old"
+    old.mkdir()
+    for item in run.iterdir():
+        if item.is_file():
+            (old / item.name).write_bytes(item.read_bytes())
+    config = yaml.safe_load((old / "config.yaml").read_text())
+    del config["world"]["action_frame"]  # as runs made before the option wrote it
+    (old / "config.yaml").write_text(yaml.safe_dump(config))
+    # the checkpoint's copy says "world" (TINY is a world-frame run here): resume must agree
+    assert main(["train", "--out", str(old), "--resume", "--episodes", "3", "--no-progress"]) == 0
+    assert yaml.safe_load((old / "config.yaml").read_text())["world"]["action_frame"] == "world"

@@ -197,7 +197,7 @@ def test_dsac_trains_bitwise_as_before_the_training_core_split(tmp_path, encoder
         ({**TINY, "dsac": {"lr": "fast"}}, "dsac.lr must be a number, got 'fast'"),
         ({**TINY, "dsac": {"batch_size": -4}}, "dsac.batch_size must be >= 1, got -4"),
         ({**TINY, "algo": "ppo"}, "unknown algorithm 'ppo'"),
-        ({**TINY, "value_rl": {}}, "unknown key(s) ['value_rl']"),
+        ({**TINY, "value_rl": {}}, "belong to another algorithm"),
         ({**TINY, "episodes": 1.5}, "episodes must be an integer, got 1.5"),
         ({**TINY, "world": {"visible_robot": "maybe"}}, "visible_robot must be true or false"),
     ],

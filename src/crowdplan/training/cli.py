@@ -57,7 +57,7 @@ def _resumed_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
     run_dir = Path(args.out)
     if not (run_dir / "checkpoint.pt").is_file():
         raise FileNotFoundError(f"{run_dir} holds no checkpoint.pt to resume from")
-    return load_config(run_dir / "config.yaml"), run_dir
+    return load_config(run_dir / "config.yaml", legacy_defaults=True), run_dir
 
 
 def train_from_cli(args: argparse.Namespace) -> int:

@@ -102,8 +102,20 @@ def config_from_dict(data: Any) -> TrainConfig:
     return config
 
 
-def load_config(path: str | Path) -> TrainConfig:
-    """Read a YAML training config, with errors that name the file and the problem."""
+def with_legacy_defaults(data: Any) -> Any:
+    """A run's saved config with the defaults of the version that made it: runs from before
+    the action frame option acted in the world frame (today's default is the goal frame)."""
+    if isinstance(data, dict) and isinstance(data.get("world"), dict):
+        data = {**data, "world": {"action_frame": "world", **data["world"]}}
+    return data
+
+
+def load_config(path: str | Path, legacy_defaults: bool = False) -> TrainConfig:
+    """Read a YAML training config, with errors that name the file and the problem.
+
+    ``legacy_defaults``: the file is the config.yaml of an existing run (see
+    :func:`with_legacy_defaults`).
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"config file {path} does not exist (see configs/*.yaml)")
@@ -111,6 +123,8 @@ def load_config(path: str | Path) -> TrainConfig:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as error:
         raise ValueError(f"config file {path} is not valid YAML: {error}") from error
+    if legacy_defaults:
+        data = with_legacy_defaults(data)
     try:
         return config_from_dict(data)
     except (ValueError, TypeError) as error:

@@ -41,7 +41,7 @@ from crowdplan.training.checkpoint import (
     torch_save_atomic,
     world_state,
 )
-from crowdplan.training.config import TrainConfig, config_from_dict
+from crowdplan.training.config import TrainConfig, config_from_dict, with_legacy_defaults
 from crowdplan.training.run_logs import RunLogs
 
 # Summary metrics copied into validation.csv.
@@ -261,7 +261,7 @@ class Trainer:
         """
         state = read_checkpoint(path)
         # normalised through TrainConfig, so options added since the checkpoint take defaults
-        saved = config_from_dict(state["config"]).to_dict()
+        saved = config_from_dict(with_legacy_defaults(state["config"])).to_dict()
         current = self.config.to_dict()
         saved.update(episodes=current["episodes"], val_interval=current["val_interval"])
         algo = self.config.algo
