@@ -10,6 +10,8 @@ encoders switch to branch-free code paths while exporting (``torch.compiler.is_e
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -107,10 +109,14 @@ def goal_heading(world: WorldConfig) -> float | None:
 
 
 def export_model(
-    model: str, out_dir: str | Path, max_humans: int = DEFAULT_MAX_HUMANS
+    model: str,
+    out_dir: str | Path,
+    max_humans: int = DEFAULT_MAX_HUMANS,
+    fresh_process: bool = False,
 ) -> tuple[Manifest, Path]:
     """Export ``model`` (path, run folder or shipped name) to ``out_dir``/policy.onnx and
-    ``out_dir``/manifest.json; returns the manifest and the ONNX path."""
+    ``out_dir``/manifest.json; returns the manifest and the ONNX path. ``fresh_process``: this
+    call already runs in a fresh interpreter (no retry there)."""
     if max_humans < 1:
         raise ValueError(f"max_humans must be >= 1, got {max_humans}")
     policy, world = load_model_policy(model)
@@ -124,6 +130,16 @@ def export_model(
     out.mkdir(parents=True, exist_ok=True)
     onnx_path = out / ONNX_FILE
     _export_onnx(spec, onnx_path, max_humans)
+    if not _dynamic_crowd(onnx_path) and not fresh_process:
+        # An earlier export in this process can leave the exporter tracing the LSTM step by
+        # step, which fixes the crowd size; an export in a fresh interpreter does not.
+        subprocess.run(
+            [sys.executable, "-m", __name__, model, str(out), str(max_humans)],
+            check=True,
+            capture_output=True,
+        )
+    if not _dynamic_crowd(onnx_path):
+        raise ValueError(f"the export of {model} fixed the number of humans; it is unusable")
     manifest = Manifest(
         kind=spec.kind,
         outputs=spec.outputs,
@@ -229,6 +245,19 @@ def verify_export(
     return result
 
 
+def _dynamic_crowd(path: Path) -> bool:
+    """Whether the ONNX model's ``humans`` input has a symbolic crowd size."""
+    import onnx
+
+    graph = onnx.load(str(path), load_external_data=False).graph
+    humans = next(i for i in graph.input if i.name == "humans")
+    return bool(humans.type.tensor_type.shape.dim[1].dim_param)
+
+
 def max_abs_difference(a: np.ndarray, b: np.ndarray) -> float:
     """Largest absolute difference (0 for empty arrays)."""
     return float(np.max(np.abs(np.asarray(a) - np.asarray(b)), initial=0.0))
+
+
+if __name__ == "__main__":  # python -m crowdplan.deploy.export MODEL OUT MAX_HUMANS
+    export_model(sys.argv[1], sys.argv[2], int(sys.argv[3]), fresh_process=True)
