@@ -99,6 +99,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
     seeds = evaluation.SPLITS[args.split].seeds(args.episodes)
     if args.batch_size < 1:
         raise ValueError(f"--batch-size must be >= 1, got {args.batch_size}")
+    run_episodes = evaluation.run_episodes
+    if args.backend != "local" or args.shards > 1:
+        from crowdplan.backends.shards import sharded_runner
+
+        run_episodes = sharded_runner(args.backend, args.shards, args.address)
     if args.record and not args.out:
         raise ValueError("--record needs --out DIR (the folder that gets records.npz)")
     if args.out:
@@ -119,7 +124,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     with Progress(len(seeds), f"eval {policy.name}", quiet=args.quiet) as progress:
-        evaluation.run_episodes(
+        run_episodes(
             policy,
             config,
             seeds,
@@ -224,6 +229,25 @@ def build_parser() -> argparse.ArgumentParser:
         "(default: %(default)s)",
     )
     p.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="where the shards run: local processes or Ray (default: %(default)s)",
+    )
+    p.add_argument(
+        "--shards",
+        type=int,
+        default=1,
+        help="split the cases into this many jobs, >= 1; the results are the same "
+        "(default: %(default)s, in this process)",
+    )
+    p.add_argument(
+        "--address",
+        default=None,
+        help="Ray cluster for --backend ray: auto, ray://HOST:PORT or HOST:PORT "
+        "(default: none, a private local Ray instance)",
+    )
+    p.add_argument(
         "--out",
         default=None,
         help="folder for summary.json and episodes.jsonl, made if missing "
@@ -309,6 +333,9 @@ def build_parser() -> argparse.ArgumentParser:
     from crowdplan.deploy.cli import add_commands as add_deploy_commands
 
     add_deploy_commands(sub)
+    from crowdplan.sweep_cli import add_command as add_sweep_command
+
+    add_sweep_command(sub)
     _show_defaults(parser)
     return parser
 

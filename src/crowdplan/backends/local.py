@@ -1,0 +1,62 @@
+"""Jobs on a pool of local worker processes (spawned, so each starts with clean state)."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any
+
+from crowdplan.backends import run_with_threads
+
+# New pools started after a worker process died, before the map gives up.
+POOL_RESTARTS = 3
+
+
+class LocalBackend:
+    """``workers`` processes at a time (default: as many as the CPUs hold jobs of ``threads``)."""
+
+    def __init__(self, workers: int | None = None):
+        self.workers = workers
+
+    def map(
+        self, fn: Callable[..., Any], jobs: Sequence[tuple], threads: int
+    ) -> Iterator[tuple[int, Any]]:
+        """Yield ``(index, fn(*jobs[index]))`` as jobs finish; a dead worker's jobs run again
+        in a new pool (up to ``POOL_RESTARTS`` times)."""
+        workers = self.workers or max(1, (os.cpu_count() or 1) // threads)
+        pending = dict(enumerate(jobs))
+        for _ in range(POOL_RESTARTS + 1):
+            pool = ProcessPoolExecutor(
+                min(workers, max(len(pending), 1)),
+                mp_context=multiprocessing.get_context("spawn"),
+                max_tasks_per_child=1,
+            )
+            futures: dict[Future, int] = {
+                pool.submit(run_with_threads, threads, fn, job): index
+                for index, job in pending.items()
+            }
+            try:
+                while futures:
+                    done, _ = wait(futures, return_when=FIRST_COMPLETED)
+                    for future in done:
+                        index = futures.pop(future)
+                        try:
+                            result = future.result()
+                        except BrokenProcessPool:
+                            continue  # a worker died: rerun its jobs in a new pool
+                        del pending[index]
+                        yield index, result
+            finally:
+                pool.shutdown(wait=True, cancel_futures=True)
+            if not pending:
+                return
+        raise RuntimeError(
+            f"worker processes kept dying ({POOL_RESTARTS + 1} pools); {len(pending)} job(s) "
+            "did not finish - run the same command again to resume them"
+        )
+
+    def close(self) -> None:
+        """Nothing to release: each map shuts its pool down."""

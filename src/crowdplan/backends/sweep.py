@@ -1,0 +1,435 @@
+"""Sweeps: a grid of settings x seeds, one resumable ``crowdplan train`` run folder per trial.
+
+A sweep folder holds:
+    sweep.json              the base config (resolved) and threads per trial; a re-run must match
+    sweep.lock              while a sweep writes the folder (pid, host, start time)
+    configs/<trial>.yaml    each trial's full config (trial = <setting>-s<seed>)
+    runs/<trial>/           each trial's run folder (as `crowdplan train --out` makes it)
+    logs/<trial>.log        each trial's output, appended over its attempts
+    results/<trial>.json    written when a trial finished: its final metrics
+    summary.json, summary.md   mean and 95% interval across seeds of each setting
+
+Re-running the same command skips trials with a result, resumes those with a checkpoint and
+starts the others afresh.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import itertools
+import json
+import math
+import os
+import re
+import shutil
+import socket
+import time
+from collections.abc import Callable, Iterator
+from contextlib import redirect_stderr, redirect_stdout
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from crowdplan.backends import Backend, JobInterrupted
+from crowdplan.evaluation import format_value, mean_interval
+from crowdplan.io import atomic_write, write_json
+
+# Metrics of a trial, from its test cases when the config tests, else its last validation.
+TRIAL_METRICS = ("success_rate", "collision_rate", "timeout_rate", "time_to_goal", "mean_reward")
+RATE, POSITIVE = (0.0, 1.0), (0.0, math.inf)
+BOUNDS = {
+    "success_rate": RATE,
+    "collision_rate": RATE,
+    "timeout_rate": RATE,
+    "time_to_goal": POSITIVE,
+    "hours_per_10k_episodes": POSITIVE,
+}
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One run of the sweep: a setting (grid point) and a seed."""
+
+    setting: str
+    seed: int
+    config: dict[str, Any]
+
+    @property
+    def name(self) -> str:
+        return f"{self.setting}-s{self.seed}"
+
+
+# ---------------------------------------------------------------------- the command line's grid
+def parse_seeds(text: str) -> list[int]:
+    """``"0-9"`` (inclusive), ``"3"`` or ``"0,2,5"`` -> sorted distinct seeds >= 0."""
+    seeds: set[int] = set()
+    for part in text.split(","):
+        match = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
+        if not match:
+            raise ValueError(f"--seeds must look like 0-9, 3 or 0,2,5 (seeds >= 0), got {text!r}")
+        low = int(match[1])
+        high = int(match[2]) if match[2] is not None else low
+        if high < low:
+            raise ValueError(f"--seeds range {part.strip()!r} is empty: write it as {high}-{low}")
+        seeds.update(range(low, high + 1))
+    return sorted(seeds)
+
+
+def _split_values(text: str) -> list[str]:
+    """Split at commas outside brackets, so that ``[64,64],[128,128]`` is two values."""
+    values, depth, current = [], 0, ""
+    for char in text:
+        depth += char in "[{"
+        depth -= char in "]}"
+        if char == "," and depth == 0:
+            values.append(current)
+            current = ""
+        else:
+            current += char
+    values.append(current)
+    return values
+
+
+def parse_grid(assignments: list[str], base: dict[str, Any]) -> list[tuple[str, list[Any]]]:
+    """``["dsac.lr=1e-4,3e-4", ...]`` -> ``[("dsac.lr", [0.0001, 0.0003]), ...]``.
+
+    Keys are dotted paths into the config as ``config.yaml`` writes it; each must exist there.
+    Values are YAML scalars or flow sequences.
+    """
+    grid: list[tuple[str, list[Any]]] = []
+    for assignment in assignments:
+        key, sep, text = assignment.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ValueError(
+                f"--set takes KEY=V1,V2,... (e.g. dsac.lr=1e-4,3e-4), got {assignment!r}"
+            )
+        if key == "seed":
+            raise ValueError("--set seed=...: give seeds with --seeds (e.g. --seeds 0-9)")
+        if key in (k for k, _ in grid):
+            raise ValueError(f"--set {key} is given twice; list all its values in one --set")
+        _lookup(base, key)
+        items = [item.strip() for item in _split_values(text)]
+        if not text.strip() or any(not item for item in items):
+            raise ValueError(f"--set {key}: empty value in {text!r}; give V1,V2,... (none empty)")
+        try:
+            values = [_parse_value(item) for item in items]
+        except yaml.YAMLError as error:
+            raise ValueError(f"--set {key}: a value is not valid YAML: {error}") from error
+        grid.append((key, values))
+    return grid
+
+
+def _parse_value(text: str) -> Any:
+    """A number as Python reads it (YAML 1.1 takes ``1e-4`` for a string), else YAML."""
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return yaml.safe_load(text)
+
+
+def _lookup(data: dict[str, Any], key: str) -> Any:
+    node: Any = data
+    for depth, part in enumerate(key.split(".")):
+        if not isinstance(node, dict) or part not in node:
+            where = ".".join(key.split(".")[:depth]) or "the top level"
+            valid = sorted(node) if isinstance(node, dict) else []
+            raise ValueError(f"--set {key}: unknown key {part!r} in {where}; valid keys: {valid}")
+        node = node[part]
+    return node
+
+
+def _assign(data: dict[str, Any], key: str, value: Any) -> None:
+    *parents, last = key.split(".")
+    for part in parents:
+        data = data[part]
+    data[last] = value
+
+
+def _label(value: Any) -> str:
+    text = json.dumps(value, separators=(",", ":")) if not isinstance(value, str) else value
+    return re.sub(r"[^A-Za-z0-9._+\-\[\],]", "_", text)
+
+
+def expand(
+    base: dict[str, Any], grid: list[tuple[str, list[Any]]], seeds: list[int], threads: int
+) -> list[Trial]:
+    """Every (setting, seed) trial, each config checked like a YAML file before any runs."""
+    from crowdplan.training.config import config_from_dict
+
+    trials = []
+    for values in itertools.product(*(v for _, v in grid)):
+        pairs = list(zip((k for k, _ in grid), values, strict=True))
+        setting = ",".join(f"{key}={_label(value)}" for key, value in pairs) or base["name"]
+        for seed in seeds:
+            data = copy.deepcopy(base)
+            for key, value in pairs:
+                _assign(data, key, value)
+            data.update(seed=seed, torch_threads=threads)
+            try:
+                config = config_from_dict(data)
+            except (ValueError, TypeError) as error:
+                raise ValueError(f"setting {setting}: {error}") from error
+            plain = json.loads(json.dumps(config.to_dict()))  # tuples as lists, as YAML reads them
+            trials.append(Trial(setting, seed, plain))
+    return trials
+
+
+# ---------------------------------------------------------------------- the sweep folder
+class SweepFolder:
+    """Paths of a sweep folder and the checks that keep two sweeps from mixing in it."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+
+    def config(self, trial: str) -> Path:
+        return self.root / "configs" / f"{trial}.yaml"
+
+    def run(self, trial: str) -> Path:
+        return self.root / "runs" / trial
+
+    def log(self, trial: str) -> Path:
+        return self.root / "logs" / f"{trial}.log"
+
+    def result(self, trial: str) -> Path:
+        return self.root / "results" / f"{trial}.json"
+
+    def prepare(self, base: dict[str, Any], threads: int, trials: list[Trial]) -> None:
+        """Write sweep.json and the trial configs, refusing a folder of another sweep (or of
+        something else) and trial configs that differ from what is already there."""
+        spec = json.loads(json.dumps({"base": base, "threads_per_trial": threads}))
+        marker = self.root / "sweep.json"
+        if marker.is_file():
+            saved = json.loads(marker.read_text())
+            if saved != spec:
+                changed = sorted(k for k in spec if saved.get(k) != spec[k])
+                raise ValueError(
+                    f"--out {self.root} holds a sweep of another config (differs in {changed}); "
+                    "give another --out, or the same --config and --threads-per-trial"
+                )
+        elif self.root.is_dir() and any(p.name != "sweep.lock" for p in self.root.iterdir()):
+            raise ValueError(
+                f"--out {self.root} exists and is not a sweep folder (no sweep.json); give a new "
+                "or empty folder so that nothing in it is overwritten"
+            )
+        for trial in trials:
+            path = self.config(trial.name)
+            if path.is_file() and yaml.safe_load(path.read_text()) != trial.config:
+                raise ValueError(f"{path} holds another config than trial {trial.name} has now")
+        write_json(marker, spec)
+        for trial in trials:
+            atomic_write(
+                self.config(trial.name),
+                lambda f, t=trial: yaml.safe_dump(t.config, f, sort_keys=False),
+            )
+
+    @contextlib.contextmanager
+    def lock(self) -> Iterator[None]:
+        """Hold ``sweep.lock`` while the sweep runs; another live holder is an error. A lock left
+        by a process of this host that no longer exists is taken over."""
+        path = self.root / "sweep.lock"
+        if self.root.exists() and not self.root.is_dir():
+            raise ValueError(f"--out {self.root} is a file; give a folder for the sweep")
+        self.root.mkdir(parents=True, exist_ok=True)
+        me = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time()}
+        for _ in range(2):
+            try:
+                fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+            except FileExistsError:
+                holder = _read_lock(path)
+                if holder and holder.get("host") == me["host"] and not _alive(holder.get("pid")):
+                    path.unlink(missing_ok=True)  # its sweep died without cleaning up
+                    continue
+                since = time.strftime(
+                    "%Y-%m-%d %H:%M:%S", time.localtime((holder or {}).get("started", 0))
+                )
+                raise ValueError(
+                    f"{self.root} is being written by another sweep (pid "
+                    f"{(holder or {}).get('pid')} on {(holder or {}).get('host')}, since {since}); "
+                    f"wait for it, or delete {path} if that sweep is gone"
+                ) from None
+            with os.fdopen(fd, "w") as f:
+                json.dump(me, f)
+            break
+        try:
+            yield
+        finally:
+            path.unlink(missing_ok=True)
+
+
+def _read_lock(path: Path) -> dict[str, Any] | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _alive(pid: Any) -> bool:
+    if not isinstance(pid, int):
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+# ---------------------------------------------------------------------- one trial (in a worker)
+def run_trial(root: str, name: str) -> dict[str, Any]:
+    """Run (or resume, or skip) trial ``name`` of the sweep in ``root``; returns its result.
+
+    Raises JobInterrupted when a signal stopped it after writing its checkpoint; any other
+    failure is returned as ``{"trial": name, "error": ...}`` so that the other trials go on.
+    """
+    from crowdplan.cli import main as crowdplan_main
+
+    folder = SweepFolder(root)
+    result_path = folder.result(name)
+    if result_path.is_file():
+        return json.loads(result_path.read_text())
+    run_dir = folder.run(name)
+    if (run_dir / "checkpoint.pt").is_file():
+        budget = yaml.safe_load(folder.config(name).read_text())["episodes"]
+        argv = ["train", "--out", str(run_dir), "--resume", "--episodes", str(budget)]
+        argv.append("--no-progress")
+    else:
+        if run_dir.exists():
+            shutil.rmtree(run_dir)  # started but stopped before its first checkpoint
+        argv = ["train", "--config", str(folder.config(name)), "--out", str(run_dir)]
+        argv.append("--no-progress")
+    log = folder.log(name)
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "a") as out, redirect_stdout(out), redirect_stderr(out):
+        print(f"pid {os.getpid()} on {socket.gethostname()}: crowdplan {' '.join(argv)}")
+        out.flush()
+        try:
+            status = crowdplan_main(argv)
+        except Exception as error:  # the other trials go on; the summary lists this one
+            return {"trial": name, "error": f"{type(error).__name__}: {error}; see {log}"}
+    if status == 130:
+        raise JobInterrupted(f"trial {name} was stopped; its checkpoint is in {run_dir}")
+    if status != 0:
+        return {"trial": name, "error": f"crowdplan train exited with status {status}; see {log}"}
+    write_json(result_path, trial_result(name, run_dir))
+    return json.loads(result_path.read_text())  # as a re-run reads it (nan as null)
+
+
+def trial_result(name: str, run_dir: Path) -> dict[str, Any]:
+    """A finished run folder's metrics: its test cases if it has them, else its last validation."""
+    meta = json.loads((run_dir / "meta.json").read_text())
+    test = run_dir / "test" / "summary.json"
+    if test.is_file():
+        summary = json.loads(test.read_text())
+        metrics = {k: summary[k]["value"] for k in TRIAL_METRICS}
+        source = f"test ({summary['episodes']['value']} cases)"
+    else:
+        import csv
+
+        with open(run_dir / "validation.csv") as f:
+            last = list(csv.DictReader(f))[-1]
+        metrics = {k: float(last[k]) if last[k] != "" else math.nan for k in TRIAL_METRICS}
+        source = f"last validation (episode {last['episode']})"
+    return {
+        "trial": name,
+        "seed": meta["seed"],
+        "episodes": meta["episodes"],
+        "hours_per_10k_episodes": meta["hours_per_10k_episodes"],
+        "source": source,
+        **metrics,
+    }
+
+
+# ---------------------------------------------------------------------- the sweep
+def run_sweep(
+    root: str | Path,
+    base: dict[str, Any],
+    trials: list[Trial],
+    threads: int,
+    open_backend: Callable[[], Backend],
+    report: Callable[[str], None] = print,
+) -> dict[str, Any]:
+    """Run every trial on the backend that ``open_backend`` starts once the folder is locked and
+    checked (finished trials are skipped, stopped ones resumed), then write and return the
+    summary across seeds. Trials that failed are listed in it."""
+    folder = SweepFolder(root)
+    with folder.lock():
+        folder.prepare(base, threads, trials)
+        results = {
+            t.name: json.loads(folder.result(t.name).read_text())
+            for t in trials
+            if folder.result(t.name).is_file()
+        }
+        todo = [t for t in trials if t.name not in results]
+        resumed = sum((folder.run(t.name) / "checkpoint.pt").is_file() for t in todo)
+        report(
+            f"{len(trials)} trial(s): {len(results)} finished before, {resumed} to resume, "
+            f"{len(todo) - resumed} to start"
+        )
+        jobs = [(str(folder.root), t.name) for t in todo]
+        backend = open_backend() if jobs else None
+        try:
+            for index, result in backend.map(run_trial, jobs, threads) if backend else ():
+                name = todo[index].name
+                results[name] = result
+                state = "failed: " + result["error"] if "error" in result else "done"
+                report(f"[{len(results)}/{len(trials)}] {name} {state}")
+        finally:
+            if backend is not None:
+                backend.close()
+        summary = summarize(trials, results)
+        write_json(folder.root / "summary.json", summary)
+        atomic_write(folder.root / "summary.md", lambda f: f.write(format_summary(summary)))
+    return summary
+
+
+def summarize(trials: list[Trial], results: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """Per setting: its seeds and, per metric, the mean over seeds with a 95% interval (normal
+    approximation, ``crowdplan.evaluation.mean_interval``; none for a single seed)."""
+    settings: dict[str, list[Trial]] = {}
+    for trial in trials:
+        settings.setdefault(trial.setting, []).append(trial)
+    rows = []
+    for setting, members in settings.items():
+        done = [r for t in members if (r := results.get(t.name)) and "error" not in r]
+        row: dict[str, Any] = {
+            "setting": setting,
+            "seeds": [r["seed"] for r in done],
+            "failed": [t.name for t in members if t.name not in {r["trial"] for r in done}],
+        }
+        for metric in (*TRIAL_METRICS, "hours_per_10k_episodes"):
+            values = [
+                r[metric] for r in done if r[metric] is not None and not math.isnan(r[metric])
+            ]
+            mean, ci = mean_interval(values, BOUNDS.get(metric, (-math.inf, math.inf)))
+            row[metric] = {"mean": mean, "ci95": ci, "n": len(values)}
+        rows.append(row)
+    return {"settings": rows, "trials": [results.get(t.name) for t in trials]}
+
+
+def format_summary(summary: dict[str, Any]) -> str:
+    """Markdown table: one row per setting, mean [95% interval] across seeds."""
+    metrics = (*TRIAL_METRICS, "hours_per_10k_episodes")
+    lines = [
+        "| setting | seeds | " + " | ".join(metrics) + " |",
+        "|---|---:|" + "---:|" * len(metrics),
+    ]
+    for row in summary["settings"]:
+        cells = []
+        for metric in metrics:
+            entry = row[metric]
+            cell = format_value(entry["mean"])
+            if entry["ci95"]:
+                cell += f" [{format_value(entry['ci95'][0])}, {format_value(entry['ci95'][1])}]"
+            cells.append(cell)
+        seeds = f"{len(row['seeds'])}" + (
+            f" ({len(row['failed'])} failed)" if row["failed"] else ""
+        )
+        lines.append(f"| {row['setting']} | {seeds} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
