@@ -90,3 +90,8 @@ def test_spearman_matches_scipy_with_ties_and_infinities():
     y[:3] = np.inf
     assert math.isclose(spearman(x, y), scipy_stats.spearmanr(x, y).statistic, abs_tol=1e-12)
     assert math.isnan(spearman([1, 1, 1], [1, 2, 3]))
+
+
+def test_across_seeds_interval_stays_in_the_metric_range():
+    s = across_seeds([0.0, 0.924], (0.0, 1.0))
+    assert s.ci95 == (0.0, 1.0) and s.mean == 0.462

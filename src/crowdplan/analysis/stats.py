@@ -88,8 +88,9 @@ class SeedSummary:
         )
 
 
-def across_seeds(values) -> SeedSummary:
-    """Mean of one value per seed with the Student-t 95% interval of the mean."""
+def across_seeds(values, bounds: tuple[float, float] = (-math.inf, math.inf)) -> SeedSummary:
+    """Mean of one value per seed with the Student-t 95% interval of the mean, clipped to the
+    metric's ``bounds`` (a rate's interval from two seeds can reach far outside 0..1)."""
     x = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=float)
     if not x.size:
         return SeedSummary(math.nan, None, ())
@@ -97,7 +98,8 @@ def across_seeds(values) -> SeedSummary:
     if x.size == 1:
         return SeedSummary(mean, None, tuple(x.tolist()))
     half = t_quantile_975(x.size - 1) * float(x.std(ddof=1)) / math.sqrt(x.size)
-    return SeedSummary(mean, (mean - half, mean + half), tuple(x.tolist()))
+    ci = (max(bounds[0], mean - half), min(bounds[1], mean + half))
+    return SeedSummary(mean, ci, tuple(x.tolist()))
 
 
 @dataclass(frozen=True)
@@ -138,8 +140,8 @@ def paired_bootstrap(
     (seeded); percentile interval; p-value = twice the smaller share of resampled means on either
     side of 0 (at least 1 / resamples unless all differences are 0)."""
     d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
-    if d.size == 0:
-        return PairedDifference(math.nan, None, math.nan, 0)
+    if d.size < 2:  # no spread to resample
+        return PairedDifference(float(d.mean()) if d.size else math.nan, None, math.nan, d.size)
     rng = np.random.default_rng(seed)
     means = d[rng.integers(0, d.size, size=(resamples, d.size))].mean(axis=1)
     lo, hi = np.percentile(means, [2.5, 97.5])
@@ -166,20 +168,18 @@ class Comparison:
         """Cells of the report's comparison tables."""
         t = self.time_to_goal
         time = (
-            "n/a (no case both reached)"
+            f"n/a ({t.n} case(s) both reached)"
             if t.ci95 is None
-            else (
-                f"{t.mean:+.2f} s [{t.ci95[0]:+.2f}, {t.ci95[1]:+.2f}], p = {format_p(t.p_value)} "
-                f"(n = {t.n})"
-            )
+            else f"{t.mean:+.2f} s [{t.ci95[0]:+.2f}, {t.ci95[1]:+.2f}], {format_p(t.p_value)} "
+            f"(n = {t.n})"
         )
         return [
             self.a,
             self.b,
             str(self.cases),
-            f"{self.success.only_a} / {self.success.only_b}, p = {format_p(self.success.p_value)}",
+            f"{self.success.only_a} / {self.success.only_b}, {format_p(self.success.p_value)}",
             f"{self.collision.only_a} / {self.collision.only_b}, "
-            f"p = {format_p(self.collision.p_value)}",
+            f"{format_p(self.collision.p_value)}",
             time,
         ]
 
@@ -195,10 +195,11 @@ COMPARISON_HEADER = [
 
 
 def format_p(p: float) -> str:
-    """A p-value with two significant digits ("< 0.0001" below)."""
+    """ "p = 0.034" with two significant digits; "p <= 0.0001" from 0.0001 down (the resolution
+    of the bootstrap)."""
     if math.isnan(p):
-        return "n/a"
-    return "< 0.0001" if p < 1e-4 else f"{p:.2g}"
+        return "p n/a"
+    return "p <= 0.0001" if p <= 1e-4 else f"p = {p:.2g}"
 
 
 def compare(

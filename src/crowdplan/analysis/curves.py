@@ -1,0 +1,199 @@
+"""Training curves of many runs (the paper's figure 6 a-i), grouped into panels.
+
+Run folders (``results/train/<run>/`` with config.yaml and episodes.csv) are found by
+``discover_runs``; a run's *method* is its config name plus the crowd size (``-h<N>``), its seeds
+are the runs of that method. Each panel draws the discounted return per training episode,
+smoothed by a rolling mean, as the mean over seeds with the band between the lowest and highest
+seed where at least two seeds reached that episode.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from crowdplan.analysis.plots import _read, rolling_mean
+
+SMOOTHING = 200  # episodes in the rolling mean
+PAPER_ENCODERS = ("rg", "sa", "aw", "raw", "lsa")
+
+
+@dataclass(frozen=True)
+class Run:
+    """A training run folder and what the panels group it by."""
+
+    folder: Path
+    name: str  # the config's name, e.g. lsa_dsac_ent05
+    seed: int
+    algo: str
+    encoder: str
+    humans: int
+    rg_pooling: str
+    share_encoder: bool
+
+    @property
+    def method(self) -> str:
+        return self.name if self.humans == 5 else f"{self.name}-h{self.humans}"
+
+
+def discover_runs(root: str | Path) -> list[Run]:
+    """Every run folder under ``root`` with config.yaml and a non-empty episodes.csv."""
+    runs = []
+    for config_path in sorted(Path(root).glob("*/config.yaml")):
+        folder = config_path.parent
+        if not (folder / "episodes.csv").is_file():
+            continue
+        config = yaml.safe_load(config_path.read_text()) or {}
+        encoder = config.get("encoder") or {}
+        runs.append(
+            Run(
+                folder=folder,
+                name=str(config.get("name", folder.name)),
+                seed=int(config.get("seed", 0)),
+                algo=str(config.get("algo", "dsac")),
+                encoder=str(encoder.get("name", "")),
+                humans=int((config.get("world") or {}).get("humans", 5)),
+                rg_pooling=str(encoder.get("rg_pooling", "")),
+                share_encoder=bool((config.get("dsac") or {}).get("share_encoder", False)),
+            )
+        )
+    return runs
+
+
+@dataclass(frozen=True)
+class Panel:
+    """One panel of the figure: a title and which runs belong, grouped into labelled lines."""
+
+    key: str
+    title: str
+    select: Callable[[Run], bool]
+    label: Callable[[Run], str]
+    min_lines: int = 1  # an ablation panel needs something to contrast
+
+
+def _both_kinds(lines: dict[str, list[Run]]) -> dict[str, list[Run]]:
+    """Keep the encoders that have both a shared and a separate line."""
+    encoders = {label.split()[0] for label in lines}
+    keep = {e for e in encoders if f"{e} shared" in lines and f"{e} separate" in lines}
+    return {label: runs for label, runs in lines.items() if label.split()[0] in keep}
+
+
+def _ent05_encoder(run: Run) -> bool:
+    return run.algo == "dsac" and re.fullmatch(r"[a-z]+_dsac_ent05", run.name) is not None
+
+
+PANELS = (
+    Panel(
+        "a",
+        "encoders, 5 humans",
+        lambda r: _ent05_encoder(r) and r.humans == 5,
+        lambda r: r.encoder.upper(),
+    ),
+    Panel(
+        "b",
+        "encoders, 10 humans",
+        lambda r: r.algo == "dsac" and r.humans == 10,
+        lambda r: r.encoder.upper(),
+    ),
+    Panel(
+        "c",
+        "LSA-DSAC with 1-5 humans",
+        lambda r: r.name == "lsa_dsac_ent05" and 1 <= r.humans <= 5,
+        lambda r: f"{r.humans} human{'s' * (r.humans > 1)}",
+    ),
+    Panel(
+        "d",
+        "RG-DSAC pooling ablations",
+        lambda r: r.algo == "dsac" and r.encoder == "rg" and r.humans == 5,
+        lambda r: r.rg_pooling or r.name,
+        min_lines=2,
+    ),
+    Panel(
+        "e",
+        "shared vs separate encoders",
+        lambda r: r.algo == "dsac" and r.humans == 5 and r.encoder in PAPER_ENCODERS,
+        lambda r: f"{r.encoder.upper()} {'shared' if r.share_encoder else 'separate'}",
+        min_lines=2,
+    ),
+    Panel(
+        "f",
+        "LSA-DSAC variants, 5 humans",
+        lambda r: r.algo == "dsac" and r.encoder == "lsa" and r.humans == 5,
+        lambda r: r.name,
+    ),
+    Panel(
+        "g",
+        "baselines (value-based and actor-critic)",
+        lambda r: r.algo != "dsac",
+        lambda r: r.method,
+    ),
+)
+
+
+def _smoothed(run: Run) -> tuple[np.ndarray, np.ndarray]:
+    data = _read(run.folder / "episodes.csv")
+    return data["episode"], rolling_mean(data["discounted_return"], SMOOTHING)
+
+
+def panel_lines(panel: Panel, runs: list[Run]) -> dict[str, list[Run]]:
+    """The runs of a panel by line label; empty when the panel has fewer than its
+    ``min_lines`` (shared-vs-separate: only encoders trained both ways)."""
+    lines: dict[str, list[Run]] = {}
+    for run in runs:
+        if panel.select(run):
+            lines.setdefault(panel.label(run), []).append(run)
+    if panel.key == "e":
+        lines = _both_kinds(lines)
+    return dict(sorted(lines.items())) if len(lines) >= panel.min_lines else {}
+
+
+def seed_band(runs: list[Run]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Episodes, mean over seeds, and lowest/highest seed (nan where fewer than two seeds)."""
+    curves = [_smoothed(r) for r in runs]
+    last = int(max(x[-1] for x, _ in curves))
+    grid = np.arange(1, last + 1, max(1, last // 400))
+    stack = np.full((len(curves), grid.size), np.nan)
+    for i, (x, y) in enumerate(curves):
+        inside = grid <= x[-1]
+        stack[i, inside] = np.interp(grid[inside], x, y)
+    count = np.isfinite(stack).sum(axis=0)
+    with np.errstate(all="ignore"):
+        mean = np.nanmean(stack, axis=0)
+        lo = np.where(count >= 2, np.nanmin(stack, axis=0), np.nan)
+        hi = np.where(count >= 2, np.nanmax(stack, axis=0), np.nan)
+    return grid, mean, lo, hi
+
+
+def draw_panels(runs: list[Run]) -> tuple[bytes, list[tuple[Panel, dict[str, list[Run]]]]]:
+    """PNG of every panel that has runs, and the runs drawn in each."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    drawn = [(p, lines) for p in PANELS if (lines := panel_lines(p, runs))]
+    cols = 2
+    rows = max(1, -(-len(drawn) // cols))
+    fig = Figure(figsize=(11, 3.4 * rows), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(rows, cols, squeeze=False).ravel()
+    for ax, (panel, lines) in zip(axes, drawn, strict=False):
+        for label, members in lines.items():
+            x, mean, lo, hi = seed_band(members)
+            seeds = len(members)
+            (line,) = ax.plot(x, mean, lw=1.3, label=f"{label} ({seeds} seed{'s' * (seeds > 1)})")
+            if seeds > 1:
+                ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
+        ax.set_title(f"({panel.key}) {panel.title}", fontsize=10)
+        ax.set(xlabel="training episode", ylabel=f"discounted return (mean of {SMOOTHING})")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="lower right")
+    for ax in axes[len(drawn) :]:
+        ax.set_axis_off()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=80)
+    return buffer.getvalue(), drawn
