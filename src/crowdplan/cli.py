@@ -187,6 +187,14 @@ def cmd_train(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from crowdplan.analysis.report import fill_markdown, report
 
+    if args.out:
+        if args.folders or args.fill:
+            raise ValueError("--out makes the report from --results: give no folders or --fill")
+        from crowdplan.analysis.html_report import build_report
+
+        page = build_report(args.out, args.results)
+        print(f"wrote {page} and {page.parent / 'tables.md'}")
+        return 0
     if args.fill:
         if args.folders:
             raise ValueError("give either result folders or --fill FILE.md, not both")
@@ -327,6 +335,17 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE.md",
         help="regenerate the '<!-- crowdplan report DIR ... -->' blocks of a markdown file "
         "(default: none, print the tables of the given folders)",
+    )
+    p.add_argument(
+        "--out",
+        metavar="DIR",
+        help="write the evaluation report: DIR/index.html (self-contained) and DIR/tables.md, "
+        "from the result folders under --results (docs/report.md) (default: none)",
+    )
+    p.add_argument(
+        "--results",
+        default="results",
+        help="the result folders the --out report reads (default: %(default)s)",
     )
     p.set_defaults(func=cmd_report)
 
