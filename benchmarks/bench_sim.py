@@ -116,6 +116,54 @@ def bench_crowdplan(config: WorldConfig, num_envs: int, seconds: float, seed: in
             return steps / (elapsed - reset_time)
 
 
+def bench_vector_api(humans: int, num_envs: int, seconds: float, seed: int = 0) -> dict:
+    """Env-steps per second through ``gymnasium.make_vec`` (the native vector env: step, info,
+    observation dict, same-step autoreset) and of ``World.step`` + ``observe`` with the same
+    autoreset, each with the reset time included and excluded (resets timed on both sides)."""
+    import gymnasium as gym
+
+    import crowdplan  # noqa: F401  (registers the environments)
+
+    env = gym.make_vec("crowdplan/CircleCrossing-v0", num_envs=num_envs, humans=humans)
+    world = env.world
+    reset_seconds = [0.0]
+    world_reset = world.reset
+
+    def timed_reset(*args, **kwargs):
+        start = CLOCK()
+        world_reset(*args, **kwargs)
+        reset_seconds[0] += CLOCK() - start
+
+    world.reset = timed_reset  # the vector env resets finished envs inside step()
+
+    def vector_step(actions: np.ndarray) -> None:
+        env.step(actions)
+
+    def world_step(actions: np.ndarray) -> None:
+        result = world.step(actions)
+        world.observe()
+        done = np.flatnonzero(result.outcome != RUNNING)
+        if done.size:
+            world.reset(np.arange(env.next_seed, env.next_seed + done.size), done)
+            env.next_seed += done.size
+
+    rates = {}
+    for name, step in (("vector", vector_step), ("world", world_step)):
+        rng = np.random.default_rng(seed)
+        env.reset(seed=SEED_BASE)
+        for _ in range(3):  # warm-up
+            step(rng.integers(0, N_ACTIONS, num_envs))
+        reset_seconds[0] = 0.0
+        steps = 0
+        start = CLOCK()
+        while (elapsed := CLOCK() - start) < seconds:
+            step(rng.integers(0, N_ACTIONS, num_envs))
+            steps += num_envs
+        rates[name] = (steps / elapsed, steps / (elapsed - reset_seconds[0]))
+    env.close()
+    return rates
+
+
 # ---------------------------------------------------------------------- CrowdNav-style reference
 @dataclass
 class ObservableState:
@@ -443,6 +491,21 @@ def main(argv: list[str] | None = None) -> None:
             print(
                 f"| {humans} | {num_envs} | {ours:,.0f} | " + " | ".join(cells) + " |", flush=True
             )
+
+    humans = 5
+    rates = bench_vector_api(humans, BATCH_ENVS, seconds)
+    print(
+        f"\n## Gymnasium vector API vs World (N={humans}, E={BATCH_ENVS}, same run)\n\n"
+        "`gymnasium.make_vec('crowdplan/CircleCrossing-v0', num_envs=64)` (the native vector env) "
+        "against `World.step` + `observe` with the same autoreset; resets timed on both sides.\n"
+    )
+    print("| path | steps/s, resets excluded | steps/s, resets included |")
+    print("|---|---:|---:|")
+    for name, label in (("world", "World.step + observe"), ("vector", "gymnasium vector API")):
+        excluded, included = rates[name][1], rates[name][0]
+        print(f"| {label} | {excluded:,.0f} | {included:,.0f} |")
+    ratio = [rates["vector"][k] / rates["world"][k] for k in (1, 0)]
+    print(f"| ratio vector API / World | {ratio[0]:.2f} | {ratio[1]:.2f} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -14,5 +14,7 @@ for _env_id, _scenario in ENV_IDS.items():
         register(
             id=_env_id,
             entry_point="crowdplan.sim.env:CrowdNavEnv",
+            # gymnasium.make_vec(id, num_envs=E) gives the native batched env over one World
+            vector_entry_point="crowdplan.sim.env:CrowdNavVectorEnv",
             kwargs={"scenario": _scenario},
         )

@@ -15,6 +15,8 @@ from crowdplan.sim.actions import N_ACTIONS
 from crowdplan.sim.world import OUTCOME_NAMES, RUNNING, World
 
 TRAIN_SEED_BASE = 2000
+# outcome code -> name, for one fancy-indexing per step instead of a Python loop over envs
+_OUTCOME_NAME_ARRAY = np.array([OUTCOME_NAMES[code] for code in range(max(OUTCOME_NAMES) + 1)])
 
 
 def make_world_config(scenario: str, humans: int = 5, **options: Any) -> WorldConfig:
@@ -176,7 +178,7 @@ class CrowdNavVectorEnv(VectorEnv):
         done = result.terminated | result.truncated
         info: dict[str, Any] = {
             "d_min": result.d_min,
-            "outcome": np.array([OUTCOME_NAMES[int(o)] for o in result.outcome]),
+            "outcome": _OUTCOME_NAME_ARRAY[result.outcome],
             "seed": self.world.seeds.copy(),
         }
         if done.any():
