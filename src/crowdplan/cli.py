@@ -47,7 +47,9 @@ def _add_world_args(parser: argparse.ArgumentParser) -> None:
 def _add_policy_args(parser: argparse.ArgumentParser) -> None:
     group = parser.add_mutually_exclusive_group()
     group.add_argument(
-        "--policy", default=None, help="built-in planner: orca or straight (default: orca unless --model)"
+        "--policy",
+        default=None,
+        help="built-in planner: orca or straight (default: orca unless --model)",
     )
     group.add_argument(
         "--model",
