@@ -89,3 +89,11 @@ def test_runs_from_before_the_action_frame_option_resume_in_the_world_frame(fini
     # the checkpoint's copy says "world" (TINY is a world-frame run here): resume must agree
     assert main(["train", "--out", str(old), "--resume", "--episodes", "3", "--no-progress"]) == 0
     assert yaml.safe_load((old / "config.yaml").read_text())["world"]["action_frame"] == "world"
+
+
+def test_parallel_update_flag_is_refused_for_other_algorithms(tmp_path, capsys):
+    config = tmp_path / "a2c.yaml"
+    config.write_text(yaml.safe_dump({"algo": "a2c", "world": {"humans": 2}}))
+    argv = ["train", "--config", str(config), "--out", str(tmp_path / "run"), "--parallel-update"]
+    assert main(argv) == 2
+    assert "applies to DSAC's two-thread update; this run trains 'a2c'" in capsys.readouterr().err

@@ -66,6 +66,11 @@ def train_from_cli(args: argparse.Namespace) -> int:
     overrides = {"episodes": args.episodes, "val_interval": args.val_interval}
     config = dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
     if args.parallel_update is not None:
+        if not hasattr(config.algo_config, "parallel_update"):
+            raise ValueError(
+                f"--[no-]parallel-update applies to DSAC's two-thread update; this run trains "
+                f"{config.algo!r}"
+            )
         params = dataclasses.replace(config.algo_config, parallel_update=args.parallel_update)
         config = dataclasses.replace(config, algo_config=params)
     config = config_from_dict(config.to_dict())  # the same checks as a YAML file gets
