@@ -10,7 +10,7 @@ setup: $(VENV)/.installed
 
 $(VENV)/.installed: pyproject.toml
 	python3 -m venv $(VENV)
-	$(PY) -m pip install --quiet -e ".[dev,onnx,ros]"
+	$(PY) -m pip install --quiet -e ".[dev,onnx,ros,ray]"
 	# pyrvo (the RVO2 reference for the ORCA oracle test) declares a large dependency it does not use.
 	$(PY) -m pip install --quiet --no-deps pyrvo==0.4.3
 	touch $@

@@ -68,6 +68,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     )
     if args.backend == "local" and args.address is not None:
         raise ValueError("--address applies to --backend ray only")
+    if args.address is not None:  # an address that does not answer is refused before any work
+        from crowdplan.backends.ray import cluster_address
+
+        cluster_address(args.address)
     summary = run_sweep(
         args.out,
         base,

@@ -33,8 +33,9 @@ from typing import Any
 
 import yaml
 
+from crowdplan.analysis.stats import across_seeds
 from crowdplan.backends import Backend, JobInterrupted
-from crowdplan.evaluation import format_value, mean_interval
+from crowdplan.evaluation import format_value
 from crowdplan.io import atomic_write, write_json
 
 # Metrics of a trial, from its test cases when the config tests, else its last validation.
@@ -390,8 +391,8 @@ def run_sweep(
 
 
 def summarize(trials: list[Trial], results: dict[str, dict[str, Any]]) -> dict[str, Any]:
-    """Per setting: its seeds and, per metric, the mean over seeds with a 95% interval (normal
-    approximation, ``crowdplan.evaluation.mean_interval``; none for a single seed)."""
+    """Per setting: its seeds and, per metric, the mean over seeds with its Student-t 95% interval
+    (``crowdplan.analysis.stats.across_seeds``; none for a single seed)."""
     settings: dict[str, list[Trial]] = {}
     for trial in trials:
         settings.setdefault(trial.setting, []).append(trial)
@@ -404,11 +405,10 @@ def summarize(trials: list[Trial], results: dict[str, dict[str, Any]]) -> dict[s
             "failed": [t.name for t in members if t.name not in {r["trial"] for r in done}],
         }
         for metric in (*TRIAL_METRICS, "hours_per_10k_episodes"):
-            values = [
-                r[metric] for r in done if r[metric] is not None and not math.isnan(r[metric])
-            ]
-            mean, ci = mean_interval(values, BOUNDS.get(metric, (-math.inf, math.inf)))
-            row[metric] = {"mean": mean, "ci95": ci, "n": len(values)}
+            bounds = BOUNDS.get(metric, (-math.inf, math.inf))
+            seeds = across_seeds([r[metric] for r in done], bounds)
+            ci = list(seeds.ci95) if seeds.ci95 else None
+            row[metric] = {"mean": seeds.mean, "ci95": ci, "n": len(seeds.values)}
         rows.append(row)
     return {"settings": rows, "trials": [results.get(t.name) for t in trials]}
 
