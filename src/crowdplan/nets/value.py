@@ -24,12 +24,11 @@ from torch import Tensor, nn
 from crowdplan.nets.encoders import (
     PAIR_DIM,
     ROBOT_DIM,
-    lstm_last_hidden,
     masked_softmax,
     mlp,
-    order_humans,
 )
 from crowdplan.nets.heads import ValueHead
+from crowdplan.nets.lstm_rl import LSTM_HIDDEN, LSTMRLEncoder
 
 VALUE_NETWORKS = ("cadrl", "lstm_rl", "sarl")
 
@@ -78,17 +77,14 @@ class LSTMRL(ValueNetwork):
 
     name = "lstm_rl"
 
-    def __init__(self, hidden: int = 50) -> None:
+    def __init__(self, hidden: int = LSTM_HIDDEN) -> None:
         super().__init__()
-        self.lstm = nn.LSTM(PAIR_DIM, hidden, batch_first=True)
-        self.value = ValueHead(ROBOT_DIM + hidden)
+        self.encoder = LSTMRLEncoder(hidden)
+        self.value = ValueHead(self.encoder.out_dim)
 
     def forward(self, robot: Tensor, humans: Tensor, mask: Tensor) -> tuple[Tensor, None]:
-        index = order_humans(humans, mask, "distance_desc")
-        humans = humans.gather(1, index.unsqueeze(-1).expand(-1, -1, humans.shape[-1]))
-        mask = mask.gather(1, index)
-        last = lstm_last_hidden(self.lstm, _pairs(robot, humans, mask), mask.sum(dim=1))
-        return self.value(torch.cat([robot, last], dim=1)).squeeze(-1), None
+        features, _ = self.encoder(robot, humans, mask)
+        return self.value(features).squeeze(-1), None
 
 
 class SARL(ValueNetwork):
