@@ -7,7 +7,8 @@ A sweep folder holds:
     runs/<trial>/           each trial's run folder (as `crowdplan train --out` makes it)
     logs/<trial>.log        each trial's output, appended over its attempts
     results/<trial>.json    written when a trial finished: its final metrics
-    summary.json, summary.md   mean and 95% interval across seeds of each setting
+    summary.json, summary.md   mean and 95% interval across seeds of each setting (summary.json
+                            also: trials run by the last invocation and its wall-clock seconds)
 
 Re-running the same command skips trials with a result, resumes those with a checkpoint and
 starts the others afresh.
@@ -374,6 +375,7 @@ def run_sweep(
             f"{len(todo) - resumed} to start"
         )
         jobs = [(str(folder.root), t.name) for t in todo]
+        start = time.perf_counter()
         backend = open_backend() if jobs else None
         try:
             for index, result in backend.map(run_trial, jobs, threads) if backend else ():
@@ -385,6 +387,8 @@ def run_sweep(
             if backend is not None:
                 backend.close()
         summary = summarize(trials, results)
+        # this invocation's throughput, backend start included (docs/scaling.md)
+        summary["run"] = {"trials_run": len(jobs), "wall_seconds": time.perf_counter() - start}
         write_json(folder.root / "summary.json", summary)
         atomic_write(folder.root / "summary.md", lambda f: f.write(format_summary(summary)))
     return summary
