@@ -83,3 +83,15 @@ def test_page_in_a_headless_browser(page):
     assert images >= 5 and loaded is not None and int(loaded.group(1)) == images
     assert len(re.findall(r"<table>", dom)) == page.read_text().count("<table>")
     assert len(re.findall(r"<tr>", dom)) > 20
+
+
+def test_same_cases_needs_same_seeds_and_world():
+    from crowdplan.analysis.html_report import same_cases
+
+    def summary(**world):
+        return {"meta": {"seeds": [1000, 1499], "world": world}}
+
+    assert same_cases(summary(humans=5, action_frame="goal"), summary(humans=5, new_option=1))
+    assert not same_cases(summary(humans=5), summary(humans=10))
+    other = {"meta": {"seeds": [1000, 1009], "world": {"humans": 5}}}
+    assert not same_cases(summary(humans=5), other)

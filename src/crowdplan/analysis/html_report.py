@@ -249,15 +249,15 @@ def significance(runs: dict[str, RecordedRun], train_tests: list[Path], world: s
 
 
 def same_cases(a: dict, b: dict) -> bool:
-    """Whether two evaluations ran the same cases: same seeds and world (the frame actions are
-    expressed in does not change a case)."""
-
-    def key(s: dict) -> tuple:
-        meta = s.get("meta", {})
-        world = {k: v for k, v in meta.get("world", {}).items() if k != "action_frame"}
-        return meta.get("seeds"), json.dumps(world, sort_keys=True)
-
-    return key(a) == key(b)
+    """Whether two evaluations ran the same cases: same seeds and the same world settings they
+    both name (an option that older results do not name did not exist yet, which plays as its
+    default; the frame actions are expressed in does not change a case)."""
+    meta_a, meta_b = a.get("meta", {}), b.get("meta", {})
+    world_a, world_b = meta_a.get("world", {}), meta_b.get("world", {})
+    shared = (set(world_a) & set(world_b)) - {"action_frame"}
+    return meta_a.get("seeds") == meta_b.get("seeds") and all(
+        world_a[k] == world_b[k] for k in shared
+    )
 
 
 def strategy_section(runs: dict[str, RecordedRun]) -> Section:
