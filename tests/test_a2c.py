@@ -14,8 +14,8 @@ from crowdplan.algos.a2c import (
     A2C_MODEL_FORMAT,
     A2CAgent,
     A2CPolicy,
+    advantages_and_returns,
     load_a2c_payload,
-    n_step_returns,
 )
 from crowdplan.algos.base import Transitions
 from crowdplan.cli import main
@@ -57,7 +57,11 @@ def test_n_step_returns_on_a_hand_made_rollout():
     terminated = torch.tensor([[0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=torch.bool)
     truncated = torch.tensor([[0, 0, 1, 0], [0, 0, 0, 0], [0, 0, 0, 1]], dtype=torch.bool)
     bootstrap = torch.tensor([[99.0, 99.0, 4.0, 99.0], [99.0] * 4, [10.0, 10.0, 10.0, 10.0]])
-    returns = n_step_returns(rewards, terminated, truncated, bootstrap, gamma=0.5)
+    values = torch.tensor([[0.5, -1.0, 2.0, 7.0], [1.5, 0.0, -3.0, 0.25], [9.0, 4.0, 1.0, 2.0]])
+    advantages, returns = advantages_and_returns(
+        rewards, values, terminated, truncated, bootstrap, gamma=0.5, lam=1.0
+    )
+    assert torch.allclose(advantages, returns - values)
     expected = torch.tensor(
         [
             # running on: 3 + 5 = 8, 2 + 4 = 6, 1 + 3 = 4
@@ -70,6 +74,44 @@ def test_n_step_returns_on_a_hand_made_rollout():
         ]
     )
     assert torch.allclose(returns, expected)
+    # lambda = 0: the one-step TD errors, the successor's value being V(s_{t+1}) inside an episode
+    one_step, targets = advantages_and_returns(
+        rewards, values, terminated, truncated, bootstrap, gamma=0.5, lam=0.0
+    )
+    successor = torch.tensor([[1.5, 0.0, 4.0, 0.25], [9.0, 0.0, 1.0, 2.0], [10.0] * 4])
+    assert torch.allclose(one_step, rewards + 0.5 * (~terminated) * successor - values)
+    assert torch.allclose(targets, one_step + values)
+
+
+def test_gae_mixes_the_td_errors_and_stops_at_episode_ends():
+    # one env, three steps, gamma 1, lambda 0.5; the episode ends (terminated) at step 1
+    rewards = torch.tensor([[0.0], [1.0], [2.0]])
+    values = torch.tensor([[1.0], [2.0], [3.0]])
+    terminated = torch.tensor([[False], [True], [False]])
+    truncated = torch.zeros(3, 1, dtype=torch.bool)
+    bootstrap = torch.tensor([[0.0], [0.0], [5.0]])
+    advantages, _ = advantages_and_returns(
+        rewards, values, terminated, truncated, bootstrap, gamma=1.0, lam=0.5
+    )
+    # deltas: 0 + 2 - 1 = 1, 1 - 2 = -1, 2 + 5 - 3 = 4; A_0 = 1 + 0.5 * (-1), A_1 = -1, A_2 = 4
+    assert torch.allclose(advantages, torch.tensor([[0.5], [-1.0], [4.0]]))
+
+
+def test_normalised_advantages_change_the_step_and_are_part_of_the_run(tmp_path):
+    plain = _train(tmp_path, "plain", episodes=2)
+    normalised = _train(
+        tmp_path,
+        "normalised",
+        episodes=2,
+        algo_config=dataclasses.replace(
+            config_from_dict(TINY).algo_config, normalize_advantages=True, gae_lambda=0.9
+        ),
+    )
+    assert normalised.agent.n_updates == plain.agent.n_updates > 0
+    assert not torch.equal(_weights(plain), _weights(normalised))
+    assert torch.isfinite(_weights(normalised)).all()
+    saved = torch.load(normalised.run_dir / "final_model.pt", weights_only=True)["a2c"]
+    assert saved["normalize_advantages"] is True and saved["gae_lambda"] == 0.9
 
 
 def _agent(**a2c):
@@ -100,7 +142,9 @@ def test_update_bootstraps_on_truncation_and_last_step_only():
     # the two successors are the same states (``later``), so V(s'_t) is v_next for every step
     assert torch.allclose(bootstrap[:, 0], v_next[0].expand(2))
     assert bootstrap[0, 1] == 0.0 and bootstrap[1, 1] == 0.0  # runs on, then terminated
-    returns = n_step_returns(t["reward"], t["terminated"], t["truncated"], bootstrap, 0.5)
+    _, returns = advantages_and_returns(
+        t["reward"], v_now.view(2, 2), t["terminated"], t["truncated"], bootstrap, 0.5, 1.0
+    )
     assert torch.allclose(returns[:, 0], torch.tensor([1 + 0.5 * v_next[0], 3 + 0.5 * v_next[0]]))
     assert torch.allclose(returns[:, 1], torch.tensor([2 + 0.5 * 4.0, 4.0]))
     # one gradient step, with the advantages G - V(s), clears the rollout

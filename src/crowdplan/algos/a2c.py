@@ -11,10 +11,14 @@ one gradient step on
     loss = -mean(A_t log pi(a_t|s_t)) + value_coef * mean((G_t - V(s_t))^2) / 2
            - entropy_coef * mean(H(pi(.|s_t)))
 
-with the n-step returns ``G_t = r_t + gamma (1 - terminated_t) B_t`` where ``B_t`` is
-``V(s'_t)`` when step t is the rollout's last or was truncated by the time limit (the state did
-not end: bootstrap from the true last observation) and ``G_{t+1}`` otherwise; ``A_t = G_t - V(s_t)``
-(V detached). Gradients are clipped to ``max_grad_norm``. The greedy policy is the actor's argmax.
+with the GAE(lambda) advantages ``A_t = sum_k (gamma lambda)^k delta_{t+k}`` of the one-step
+errors ``delta_t = r_t + gamma (1 - terminated_t) V(s'_t) - V(s_t)``, the trace cut at an episode's
+end and at the rollout's end, and the critic's targets ``G_t = A_t + V(s_t)``. ``V(s'_t)`` is read
+from the true last observation where step t is the rollout's last or was truncated by the time
+limit (the state did not end: bootstrap). ``lambda = 1`` gives the plain n-step returns
+``G_t = r_t + gamma (1 - terminated_t) G_{t+1}``. V is detached in the advantages, which may be
+standardised per rollout (``normalize_advantages``). Gradients are clipped to ``max_grad_norm``.
+The greedy policy is the actor's argmax.
 """
 
 from __future__ import annotations
@@ -70,6 +74,8 @@ class A2CConfig:
         entropy_coef: weight of the policy-entropy bonus.
         value_coef: weight of the critic's squared-error loss.
         max_grad_norm: gradients are clipped to this global norm.
+        gae_lambda: lambda of the GAE advantages (1: the plain n-step returns).
+        normalize_advantages: standardise the advantages over each rollout (policy loss only).
         lstm_hidden: hidden size of the encoder's LSTM (SPEC: 50).
         actor_hidden: hidden sizes of the actor MLP.
         critic_hidden: hidden sizes of the critic MLP.
@@ -81,6 +87,8 @@ class A2CConfig:
     entropy_coef: float = spec(0.01, low=0.0)
     value_coef: float = spec(0.5, low=0.0)
     max_grad_norm: float = spec(0.5, low=0.0, low_open=True)
+    gae_lambda: float = spec(1.0, low=0.0, high=1.0)
+    normalize_advantages: bool = False
     lstm_hidden: int = spec(50, low=1)
     actor_hidden: tuple[int, ...] = (150, 100)
     critic_hidden: tuple[int, ...] = (150, 100, 100)
@@ -111,22 +119,35 @@ class ActorCritic(nn.Module):
         return self.critic(features).squeeze(-1)
 
 
-def n_step_returns(
-    rewards: Tensor, terminated: Tensor, truncated: Tensor, bootstrap: Tensor, gamma: float
-) -> Tensor:
-    """Discounted n-step returns of a rollout, all arguments (T, E) over T steps of E envs.
+def advantages_and_returns(
+    rewards: Tensor,
+    values: Tensor,
+    terminated: Tensor,
+    truncated: Tensor,
+    bootstrap: Tensor,
+    gamma: float,
+    lam: float,
+) -> tuple[Tensor, Tensor]:
+    """GAE(lambda) advantages and the critic's targets ``A_t + V(s_t)`` of a rollout, all
+    arguments (T, E) over T steps of E envs.
 
-    ``bootstrap[t]`` is V(s'_t), read where step t is the last one (t = T - 1) or truncated;
-    a terminated step bootstraps from nothing (a step both terminated and truncated counts as
-    terminated).
+    ``values[t]`` is V(s_t); ``bootstrap[t]`` is V(s'_t), read where step t is the last one
+    (t = T - 1) or truncated; elsewhere the successor's value is ``values[t + 1]``. A terminated
+    step bootstraps from nothing (a step both terminated and truncated counts as terminated), and
+    no trace crosses an episode's end. ``lam = 1`` gives the n-step returns (the whole rest of the
+    rollout, then V), ``lam = 0`` the one-step TD errors.
     """
-    returns = torch.empty_like(rewards)
-    following = bootstrap[-1]
+    cut = truncated.clone()
+    cut[-1] = True
+    successor = torch.where(cut, bootstrap, torch.cat([values[1:], values[-1:]]))
+    deltas = rewards + gamma * (~terminated) * successor - values
+    carry = gamma * lam * ~(terminated | cut)
+    advantages = torch.empty_like(rewards)
+    following = torch.zeros_like(rewards[0])
     for t in range(rewards.shape[0] - 1, -1, -1):
-        following = torch.where(truncated[t], bootstrap[t], following)
-        returns[t] = rewards[t] + gamma * (~terminated[t]) * following
-        following = returns[t]
-    return returns
+        following = deltas[t] + carry[t] * following
+        advantages[t] = following
+    return advantages, advantages + values
 
 
 def _tensors(feats: Any, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
@@ -213,10 +234,18 @@ class A2CAgent:
         steps, envs = t["reward"].shape
         flat = [t[k].flatten(0, 1) for k in ("robot", "humans", "mask")]
         logits, values = self.net(*flat)
-        returns = n_step_returns(
-            t["reward"], t["terminated"], t["truncated"], self._bootstrap(t), p.gamma
-        ).flatten()
-        advantages = returns - values.detach()
+        advantages, returns = advantages_and_returns(
+            t["reward"],
+            values.detach().view(steps, envs),
+            t["terminated"],
+            t["truncated"],
+            self._bootstrap(t),
+            p.gamma,
+            p.gae_lambda,
+        )
+        advantages, returns = advantages.flatten(), returns.flatten()
+        if p.normalize_advantages:
+            advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
         log_probs = F.log_softmax(logits, dim=1)
         entropy = -(log_probs.exp() * log_probs).sum(dim=1).mean()
         chosen = log_probs.gather(1, t["action"].flatten().unsqueeze(1)).squeeze(1)
@@ -240,7 +269,7 @@ class A2CAgent:
     @torch.no_grad()
     def _bootstrap(self, t: dict[str, Tensor]) -> Tensor:
         """V(s'_t) (T, E) where step t is the last one or truncated (and not terminated); 0
-        elsewhere, where :func:`n_step_returns` does not read it."""
+        elsewhere, where :func:`advantages_and_returns` does not read it."""
         needed = t["truncated"].clone()
         needed[-1] = True
         needed &= ~t["terminated"]
