@@ -42,11 +42,14 @@ publish: setup
 	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --out results/train/$(notdir $(RUN))/test --force
 	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --scenario square_crossing --out results/train/$(notdir $(RUN))/test-square --force
 
-# Make a published run's best-validation model the shipped one: make ship RUN=results/train/<run>
+# Make a published run's best-validation model the shipped model NAME (default lsa-dsac):
+#   make ship RUN=results/train/<run> [NAME=lstm-a2c]
+NAME ?= lsa-dsac
 ship:
-	@test -f "$(RUN)/best_model.pt" || (echo "usage: make ship RUN=results/train/<run>"; exit 2)
-	cp $(RUN)/best_model.pt models/lsa-dsac/model.pt
-	cp $(RUN)/config.yaml models/lsa-dsac/config.yaml
+	@test -f "$(RUN)/best_model.pt" || (echo "usage: make ship RUN=results/train/<run> [NAME=<model>]"; exit 2)
+	mkdir -p models/$(NAME)
+	cp $(RUN)/best_model.pt models/$(NAME)/model.pt
+	cp $(RUN)/config.yaml models/$(NAME)/config.yaml
 
 # Regenerate every table of docs/results.md from the committed result folders.
 results-doc: setup
