@@ -327,7 +327,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", default=None, help="run folder (default: runs/<name>-s<seed>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
-    p.add_argument("--no-progress", action="store_true", help="plain log lines, no progress bar")
+    p.add_argument(
+        "--no-progress", action="store_true", help="plain progress lines, no bar (as in a log file)"
+    )
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("report", help="markdown tables from result and run folders")

@@ -37,6 +37,8 @@ class Progress:
         stream: where to write; a terminal gets a bar, anything else plain lines.
         delay: seconds before the first output (short jobs stay silent).
         log_every: seconds between two lines when ``stream`` is not a terminal.
+        initial: units already done (a resumed job).
+        bar: False writes plain lines even on a terminal.
     """
 
     def __init__(
@@ -48,22 +50,30 @@ class Progress:
         stream: TextIO | None = None,
         delay: float = 1.0,
         log_every: float = 10.0,
+        initial: int = 0,
+        bar: bool = True,
     ) -> None:
         self.total, self.desc, self.unit = total, desc, unit
-        self.count = 0
+        self.count = initial
         self.postfix: dict = {}
         self._stream = stream if stream is not None else sys.stderr
         self._delay, self._log_every = delay, log_every
         self._start = time.monotonic()
         self._last_line: float | None = None
-        self._logged_count = 0
+        self._logged_count = initial
         self._bar = None
         self._quiet = quiet
-        if not quiet and self._stream.isatty():
+        if bar and not quiet and self._stream.isatty():
             from tqdm import tqdm
 
             self._bar = tqdm(
-                total=total, desc=desc, unit=unit, file=self._stream, delay=delay, leave=True
+                total=total,
+                desc=desc,
+                unit=unit,
+                file=self._stream,
+                delay=delay,
+                leave=True,
+                initial=initial,
             )
 
     def update(self, n: int = 1, **postfix: float | int | str) -> None:
@@ -82,6 +92,16 @@ class Progress:
             return
         if self._last_line is None or now - self._last_line >= self._log_every:
             self._write_line(now)
+
+    def write(self, line: str) -> None:
+        """A message of its own line, without breaking the bar."""
+        if self._quiet:
+            return
+        if self._bar is not None:
+            self._bar.write(line, file=self._stream)
+        else:
+            self._stream.write(line + "\n")
+            self._stream.flush()
 
     def close(self) -> None:
         """Finish the display: the bar stays as it is; a log gets a line with the final count."""

@@ -74,7 +74,7 @@ def train_from_cli(args: argparse.Namespace) -> int:
         params = dataclasses.replace(config.algo_config, parallel_update=args.parallel_update)
         config = dataclasses.replace(config, algo_config=params)
     config = config_from_dict(config.to_dict())  # the same checks as a YAML file gets
-    trainer = Trainer(config, run_dir, progress=not args.no_progress)
+    trainer = Trainer(config, run_dir, progress=not args.no_progress, quiet=args.quiet)
     if args.resume:
         trainer.restore(run_dir / "checkpoint.pt")
         done = len(trainer.episodes)

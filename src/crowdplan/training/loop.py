@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import sys
 import threading
 import time
 from pathlib import Path
@@ -33,6 +32,7 @@ from crowdplan.algos.registry import get_algorithm
 from crowdplan.config import to_dict
 from crowdplan.models import load_model_policy
 from crowdplan.policies import git_hash, run_metadata
+from crowdplan.progress import Progress
 from crowdplan.sim.env import TRAIN_SEED_BASE, CrowdNavVectorEnv
 from crowdplan.training.checkpoint import (
     CHECKPOINT_FORMAT,
@@ -55,12 +55,23 @@ VALIDATION_METRICS = (
 
 
 class Trainer:
-    """Owns the run: agent, vector env and logs; ``run()`` trains to the episode budget."""
+    """Owns the run: agent, vector env and logs; ``run()`` trains to the episode budget.
 
-    def __init__(self, config: TrainConfig, run_dir: str | Path, progress: bool = True):
+    Progress goes to stderr: a bar on a terminal (``progress=False``: plain lines every 10 s,
+    as in a log file), nothing with ``quiet``.
+    """
+
+    def __init__(
+        self,
+        config: TrainConfig,
+        run_dir: str | Path,
+        progress: bool = True,
+        quiet: bool = False,
+    ):
         self.config = config
         self.run_dir = Path(run_dir)
-        self.progress = progress
+        self.display = Progress(0, quiet=True)  # replaced by run()
+        self._display_options = {"bar": progress, "quiet": quiet}
         # the commit of the code this process runs: read once, since the tree may move on
         self.code_version = git_hash()
         if config.device != "cpu" and not torch.cuda.is_available():
@@ -188,20 +199,15 @@ class Trainer:
                 **{f"update/{key}": value for key, value in stats.items()},
             },
         )
-        hours = self.train_seconds / max(done, 1) * 10000 / 3600
-        filled = int(20 * min(done / self.config.episodes, 1.0))
-        extra = f"alpha {stats['alpha']:.3f}  " if "alpha" in stats else ""
-        self._print(
-            f"[{'#' * filled}{'.' * (20 - filled)}] "
-            f"episode {done:>6}/{self.config.episodes}  success(100) {success:5.2f}  "
-            f"reward(100) {reward:+.3f}  {extra}{hours:.2f} h/10k episodes"
-        )
 
-    def _print(self, line: str) -> None:
-        if self.progress and sys.stderr.isatty():
-            print("\r" + line, end="", file=sys.stderr, flush=True)
-        else:
-            print(line, flush=True)
+    def _show_progress(self, finished: int) -> None:
+        success, reward = self._recent()
+        hours = self.train_seconds / max(len(self.episodes), 1) * 10000 / 3600
+        stats = self._last_stats or {}
+        extra = {"alpha": stats["alpha"]} if "alpha" in stats else {}
+        self.display.update(
+            finished, success100=success, reward100=reward, **extra, h_per_10k=round(hours, 2)
+        )
 
     def meta(self) -> dict[str, Any]:
         """What meta.json says about the run so far."""
@@ -304,40 +310,49 @@ class Trainer:
         cfg = self.config
         torch.set_num_threads(cfg.torch_threads)
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        if self.pretrain_seconds is None:
-            start = time.perf_counter()
-            stats = self.agent.pretrain(self._print)
-            self.pretrain_seconds = time.perf_counter() - start
-            if stats is not None:
-                self._print(f"pretraining done: {stats}")
-                self.checkpoint()
-        with _stop_requests() as stop:
-            while len(self.episodes) < cfg.episodes:
-                if stop.is_set():
+        self.display = Progress(
+            cfg.episodes,
+            f"train {cfg.name}",
+            initial=len(self.episodes),
+            delay=0.0,
+            **self._display_options,
+        )
+        with self.display:
+            if self.pretrain_seconds is None:
+                start = time.perf_counter()
+                stats = self.agent.pretrain(self.display.write)
+                self.pretrain_seconds = time.perf_counter() - start
+                if stats is not None:
+                    self.display.write(f"pretraining done: {stats}")
                     self.checkpoint()
-                    return False
-                self._train_step()
-        if not self.validations or self.validations[-1]["episode"] != len(self.episodes):
-            self.validate()  # the converged reward: validation at the end of training
+            with _stop_requests() as stop:
+                while len(self.episodes) < cfg.episodes:
+                    if stop.is_set():
+                        self.checkpoint()
+                        return False
+                    self._train_step()
+            if not self.validations or self.validations[-1]["episode"] != len(self.episodes):
+                self.validate()  # the converged reward: validation at the end of training
         self.save_model(self.run_dir / "final_model.pt", {})
         self.checkpoint()
         self.logs.close()
-        if self.progress and sys.stderr.isatty():
-            print(file=sys.stderr)
         return True
 
     def _train_step(self) -> None:
         """One vector-env step with its updates, then whatever logging / validation is due."""
         cfg = self.config
         start = time.perf_counter()
+        before = len(self.episodes)
         self._step()
         done = len(self.episodes)
+        if done > before:
+            self._show_progress(done - before)
         if done >= self._next_log:
             self._log()
             self._next_log += cfg.log_interval
         if done >= self._next_val:
             row = self.validate()
-            self._print(
+            self.display.write(
                 f"validation at episode {done}: success {row['success_rate']:.2f} "
                 f"reward {row['mean_reward']:+.3f}"
             )
