@@ -1,0 +1,79 @@
+"""The test worlds a planner is judged in beyond the paper's protocol (docs/generalization.md).
+
+Each world is a set of ``crowdplan eval`` arguments over the 500 test cases; running a planner
+in every world writes one result folder per world:
+
+    python -m crowdplan.analysis.test_worlds --out results/generalization lsa-dsac orca straight
+
+Names are shipped models, run folders or model files; ``orca`` and ``straight`` are the built-in
+planners. Replayed pedestrians come from the held-out ETH/UCY scenes only (zara1, zara2, univ).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from crowdplan.policies import BUILTIN_POLICIES
+
+TEST_WORLDS: dict[str, tuple[str, list[str]]] = {
+    "circle": ("the paper's 500 circle_crossing cases, 5 ORCA humans", []),
+    "circle-rotated": (
+        "the same cases, each scene rotated by an angle drawn from its seed",
+        ["--option", "random_goal_direction=true"],
+    ),
+    "empty": ("no humans", ["--humans", "0"]),
+    "circle-10": ("10 ORCA humans, circle radius 4 m", ["--humans", "10"]),
+    "circle-20": (
+        "20 ORCA humans, circle radius 6 m",
+        ["--humans", "20", "--option", "circle_radius=6.0"],
+    ),
+    "square": ("square_crossing (the paper's transfer test)", ["--scenario", "square_crossing"]),
+    "social-force": (
+        "circle_crossing with social-force humans",
+        ["--option", "social_force_fraction=1.0"],
+    ),
+    "replay-heldout": (
+        "replayed pedestrians of the held-out scenes zara1, zara2 and univ (up to 10)",
+        ["--scenario", "replay", "--humans", "10", "--option", "replay_scenes=[zara1,zara2,univ]"],
+    ),
+}
+
+
+def eval_arguments(planner: str, world: str, out: Path, episodes: int) -> list[str]:
+    """``crowdplan eval`` arguments of one planner in one test world."""
+    source = ["--policy", planner] if planner in BUILTIN_POLICIES else ["--model", planner]
+    _, options = TEST_WORLDS[world]
+    return [
+        "eval",
+        *source,
+        *options,
+        "--episodes",
+        str(episodes),
+        "--out",
+        str(out),
+        "--force",
+        "--quiet",
+    ]
+
+
+def main(argv: list[str] | None = None) -> int:
+    from crowdplan.cli import main as crowdplan
+
+    parser = argparse.ArgumentParser(description="Evaluate planners in every test world.")
+    parser.add_argument("planners", nargs="+", help="shipped model names, model paths, orca")
+    parser.add_argument("--out", required=True, help="results/<world>/<planner>/ are written here")
+    parser.add_argument("--episodes", type=int, default=500, help="test cases per world (500)")
+    parser.add_argument("--worlds", nargs="*", default=list(TEST_WORLDS), choices=list(TEST_WORLDS))
+    args = parser.parse_args(argv)
+    for world in args.worlds:
+        for planner in args.planners:
+            out = Path(args.out) / world / Path(planner).name
+            status = crowdplan(eval_arguments(planner, world, out, args.episodes))
+            if status != 0:
+                return status
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

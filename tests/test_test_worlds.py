@@ -1,0 +1,16 @@
+"""The generalisation test worlds: every world runs through `crowdplan eval`."""
+
+import json
+
+from crowdplan.analysis.test_worlds import TEST_WORLDS, main
+
+
+def test_every_world_evaluates_a_planner(tmp_path):
+    assert main(["orca", "--out", str(tmp_path), "--episodes", "2"]) == 0
+    for world in TEST_WORLDS:
+        summary = json.loads((tmp_path / world / "orca" / "summary.json").read_text())
+        assert summary["episodes"]["value"] == 2
+    empty = json.loads((tmp_path / "empty" / "orca" / "summary.json").read_text())
+    assert empty["meta"]["world"]["humans"] == 0
+    replay = json.loads((tmp_path / "replay-heldout" / "orca" / "summary.json").read_text())
+    assert replay["meta"]["world"]["replay_scenes"] == ["zara1", "zara2", "univ"]
