@@ -14,3 +14,17 @@ def test_every_world_evaluates_a_planner(tmp_path):
     assert empty["meta"]["world"]["humans"] == 0
     replay = json.loads((tmp_path / "replay-heldout" / "orca" / "summary.json").read_text())
     assert replay["meta"]["world"]["replay_scenes"] == ["zara1", "zara2", "univ"]
+
+
+def test_transfer_block_of_a_markdown_page(tmp_path):
+    from crowdplan.analysis.report import fill_markdown
+
+    out = tmp_path / "worlds"
+    assert main(["orca", "straight", "--out", str(out), "--episodes", "2"]) == 0
+    page = tmp_path / "page.md"
+    page.write_text(f"# t\n<!-- crowdplan report --transfer {out} -->\nold\n<!-- end report -->\n")
+    assert fill_markdown(page) == 1
+    text = page.read_text()
+    assert "old" not in text
+    assert "| planner | circle | circle-10 | circle-20 | circle-rotated | empty |" in text
+    assert "| straight |" in text and "| orca |" in text

@@ -463,7 +463,9 @@ def curves_section(train: Path) -> Section:
     return section
 
 
-def transfer_section(generalization: Path, train: Path) -> Section:
+def transfer_tables(generalization: Path) -> list[Table]:
+    """Success (collision) of every planner in every test world, then per world the paired
+    comparisons with the reference planner."""
     worlds = (
         sorted(p.name for p in generalization.iterdir() if p.is_dir())
         if generalization.is_dir()
@@ -501,6 +503,11 @@ def transfer_section(generalization: Path, train: Path) -> Section:
             if same_cases(ref_summary, _summary(folder / planner)):
                 t.rows.append(stats.compare(ref, read_episodes(path), REFERENCE, planner).row())
         tests.append(t)
+    return [table, *tests]
+
+
+def robustness_table(train: Path) -> Table:
+    """Absolute change of each metric from circle_crossing to square_crossing, per run."""
     robust = Table(
         "Robustness: circle_crossing -> square_crossing (models trained on circle)",
         [
@@ -536,11 +543,17 @@ def transfer_section(generalization: Path, train: Path) -> Section:
                 paper_square.get(paper_method(sa) or "", "-"),
             ]
         )
+    return robust
+
+
+def transfer_section(generalization: Path, train: Path) -> Section:
     commands = [
         "python -m crowdplan.analysis.test_worlds --out results/generalization lsa-dsac "
-        "lsa-dsac-paper-goal orca straight",
+        "lsa-dsac-paper lsa-dsac-paper-goal orca straight",
     ]
-    return Section("Transfer and robustness", commands, tables=[table, robust, *tests])
+    table, *tests = transfer_tables(generalization)
+    tables = [table, robustness_table(train), *tests]
+    return Section("Transfer and robustness", commands, tables=tables)
 
 
 def gifs(runs: dict[str, RecordedRun]) -> Section:

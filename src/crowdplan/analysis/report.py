@@ -6,7 +6,9 @@ their training time and last validation.
 
 ``crowdplan report --fill FILE.md`` regenerates every block of a markdown page that sits between
 ``<!-- crowdplan report DIR [DIR ...] -->`` and ``<!-- end report -->`` from those folders, so that
-the tables of docs/results.md are always the output of the command written above them.
+the tables of docs/results.md are always the output of the command written above them. A block
+``<!-- crowdplan report --transfer DIR -->`` holds the planner x test-world table of a folder
+written by ``python -m crowdplan.analysis.test_worlds`` and its paired comparisons.
 """
 
 from __future__ import annotations
@@ -146,8 +148,16 @@ def fill_markdown(path: str | Path) -> int:
     def regenerate(match: re.Match) -> str:
         nonlocal count
         count += 1
-        folders = shlex.split(match["args"])
-        return f"{match['head']}\n{report(folders)}\n{match['end']}"
+        args = shlex.split(match["args"])
+        if args[:1] == ["--transfer"]:
+            from crowdplan.analysis.html_report import transfer_tables
+
+            if len(args) != 2 or not Path(args[1]).is_dir():
+                raise ValueError(f"{path}: a --transfer block names one existing folder: {args}")
+            body = "\n".join(t.markdown() for t in transfer_tables(Path(args[1])))
+        else:
+            body = report(args)
+        return f"{match['head']}\n{body}\n{match['end']}"
 
     new_text = _BLOCK.sub(regenerate, text)
     if count == 0:
