@@ -82,12 +82,18 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     manifest, path = export_model(args.model, args.out, args.max_humans)
     print(
-        f"wrote {path} and {Path(args.out) / MANIFEST_FILE}: {manifest.encoder} encoder, "
+        f"wrote {path} and {Path(args.out) / MANIFEST_FILE}: {manifest.algo} {manifest.network}, "
+        f"{manifest.encoder or 'no'} encoder, "
         f"{manifest.kinematics}, {manifest.action_frame}-frame actions, outputs "
         f"{', '.join(manifest.outputs)}, up to {manifest.max_humans} humans"
     )
+    if manifest.lookahead:
+        print(f"actions: one-step {manifest.lookahead} lookahead, discount {manifest.gamma_step}")
     for n, diff in verify_export(args.model, args.out).items():
-        print(f"onnxruntime vs torch, {n:>2} humans: max |logit difference| {diff:.2e}")
+        print(
+            f"onnxruntime vs torch, {n:>2} humans: "
+            f"max |{manifest.outputs[0]} difference| {diff:.2e}"
+        )
     return 0
 
 

@@ -1,8 +1,10 @@
 """Export a trained model to ONNX with a dynamic crowd size, plus its JSON manifest.
 
-Exporters are looked up by the type of the loaded policy (:func:`register_exporter`): DSAC
-policies export their actor (encoder + policy head); another model family (a value network)
-registers its own function that returns the module to export, its output names and its kind.
+Exporters are looked up by the type of the loaded policy (:func:`register_exporter`), each
+returning the module to export, its output names and what the manifest says about it: DSAC and
+LSTM-A2C policies export their actor (encoder + policy head -> logits), DQN policies their Q
+network (-> Q values), the value-based baselines (CADRL, LSTM-RL, SARL) their value network
+(-> V(s)), which the runtime turns into actions by a one-step lookahead.
 The graph comes from ``torch.onnx.export(dynamo=True)`` with symbolic batch and crowd sizes; the
 encoders switch to branch-free code paths while exporting (``torch.compiler.is_exporting``).
 """
@@ -22,18 +24,24 @@ import torch
 from torch import nn
 
 import crowdplan
+from crowdplan.algos.a2c import A2CPolicy
+from crowdplan.algos.dqn import DQNPolicy
+from crowdplan.algos.value_rl import ValuePolicy
 from crowdplan.config import WorldConfig, to_dict
 from crowdplan.deploy.manifest import (
     HUMAN_FEATURES,
     INPUTS,
     ONNX_FILE,
     ROBOT_FEATURES,
+    VALUE_KIND,
     Manifest,
+    check_deployable_lookahead,
     file_sha256,
     write_manifest,
 )
 from crowdplan.features import HUMAN_FEAT_DIM, ROBOT_FEAT_DIM, robot_centric
 from crowdplan.models import DSACPolicy, load_model_policy
+from crowdplan.nets.value import CADRL
 from crowdplan.sim.actions import action_table
 
 DEFAULT_MAX_HUMANS = 20
@@ -43,11 +51,16 @@ OPSET = 18
 @dataclass
 class ExportSpec:
     """What an exporter hands back: the module (robot, humans, mask) -> outputs, their names and
-    the manifest's ``kind``."""
+    the manifest's ``kind``, ``algo``, ``network`` (and for value networks ``lookahead`` and
+    ``gamma_step``)."""
 
     module: nn.Module
     outputs: tuple[str, ...]
     kind: str
+    algo: str
+    network: str
+    lookahead: str | None = None
+    gamma_step: float | None = None
 
 
 _EXPORTERS: list[tuple[type, Callable[[object], ExportSpec]]] = []
@@ -63,12 +76,73 @@ def register_exporter(policy_type: type) -> Callable:
     return wrap
 
 
+def _names(module: nn.Module, first: str) -> tuple[str, ...]:
+    """Output names of ``module``: ``first``, then "attention" if it returns scores."""
+    with torch.no_grad():
+        outputs = module(*_sample_inputs(1, 1))
+    return (
+        (first,) if isinstance(outputs, torch.Tensor) or len(outputs) == 1 else (first, "attention")
+    )
+
+
 @register_exporter(DSACPolicy)
 def _dsac_spec(policy: DSACPolicy) -> ExportSpec:
-    with torch.no_grad():
-        _, attention = policy.actor(*_sample_inputs(1, 1))
-    outputs = ("logits",) if attention is None else ("logits", "attention")
-    return ExportSpec(_NoneFree(policy.actor), outputs, "dsac-policy")
+    module = _NoneFree(policy.actor)
+    return ExportSpec(module, _names(module, "logits"), "dsac-policy", "dsac", "actor")
+
+
+@register_exporter(A2CPolicy)
+def _a2c_spec(policy: A2CPolicy) -> ExportSpec:
+    return ExportSpec(_Actor(policy.net), ("logits",), "a2c-policy", "a2c", "actor")
+
+
+@register_exporter(DQNPolicy)
+def _dqn_spec(policy: DQNPolicy) -> ExportSpec:
+    module = _NoneFree(policy.q)
+    return ExportSpec(module, _names(module, "q"), "dqn-policy", "dqn", "q")
+
+
+@register_exporter(ValuePolicy)
+def _value_spec(policy: ValuePolicy) -> ExportSpec:
+    check_deployable_lookahead(policy.lookahead)
+    net = policy.net
+    module = _NoneFree(_WithEmptyRow(net) if isinstance(net, CADRL) else net)
+    return ExportSpec(
+        module,
+        _names(module, "value"),
+        VALUE_KIND,
+        "value_rl",
+        net.name,
+        policy.lookahead,
+        policy.gamma_step,
+    )
+
+
+class _Actor(nn.Module):
+    """The actor of an actor-critic network: (robot, humans, mask) -> logits."""
+
+    def __init__(self, net: nn.Module):
+        super().__init__()
+        self.net = net
+
+    def forward(self, robot, humans, mask):
+        features, _ = self.net.encoder(robot, humans, mask)
+        return self.net.actor(features)
+
+
+class _WithEmptyRow(nn.Module):
+    """CADRL with a padding row put first: the network gives the same values (a padding row is
+    read only when there is no real human, as the all-zero human CADRL uses for an empty crowd),
+    and its branch on an empty crowd is never taken, so the crowd size stays symbolic."""
+
+    def __init__(self, net: nn.Module):
+        super().__init__()
+        self.net = net
+
+    def forward(self, robot, humans, mask):
+        humans = torch.cat([humans.new_zeros(humans.shape[0], 1, humans.shape[2]), humans], 1)
+        mask = torch.cat([mask.new_zeros(mask.shape[0], 1), mask], dim=1)
+        return self.net(robot, humans, mask)
 
 
 class _NoneFree(nn.Module):
@@ -120,12 +194,7 @@ def export_model(
     if max_humans < 1:
         raise ValueError(f"max_humans must be >= 1, got {max_humans}")
     policy, world = load_model_policy(model)
-    for policy_type, make_spec in _EXPORTERS:
-        if isinstance(policy, policy_type):
-            spec = make_spec(policy)
-            break
-    else:
-        raise ValueError(f"no ONNX exporter for {type(policy).__name__} models")
+    spec = export_spec(policy)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     onnx_path = out / ONNX_FILE
@@ -140,6 +209,7 @@ def export_model(
         )
     if not _dynamic_crowd(onnx_path):
         raise ValueError(f"the export of {model} fixed the number of humans; it is unusable")
+    value_network = spec.kind == VALUE_KIND
     manifest = Manifest(
         kind=spec.kind,
         outputs=spec.outputs,
@@ -151,7 +221,8 @@ def export_model(
         robot_radius=world.robot_radius,
         dt=world.dt,
         action_frame=getattr(world, "action_frame", "world"),
-        goal_heading=goal_heading(world),
+        # the lookahead plans in the world frame directly: no turn for goals elsewhere
+        goal_heading=None if value_network else goal_heading(world),
         action_table=action_table(
             world.robot_v_pref, world.kinematics, world.speed_sampling
         ).tolist(),
@@ -160,9 +231,21 @@ def export_model(
         source_model=str(policy.metadata.get("model", model)),
         crowdplan_version=crowdplan.__version__,
         onnx_sha256=file_sha256(onnx_path),
+        algo=spec.algo,
+        network=spec.network,
+        lookahead=spec.lookahead,
+        gamma_step=spec.gamma_step,
     )
     write_manifest(out, manifest)
     return manifest, onnx_path
+
+
+def export_spec(policy: object) -> ExportSpec:
+    """What to export of a loaded policy; ValueError for model families without an exporter."""
+    for policy_type, make_spec in _EXPORTERS:
+        if isinstance(policy, policy_type):
+            return make_spec(policy)
+    raise ValueError(f"no ONNX exporter for {type(policy).__name__} models")
 
 
 def _export_onnx(spec: ExportSpec, path: Path, max_humans: int) -> None:
@@ -225,11 +308,13 @@ def random_observations(
 def verify_export(
     model: str, export_dir: str | Path, crowds: tuple[int, ...] = AGREEMENT_CROWDS, batch: int = 64
 ) -> dict[int, float]:
-    """Largest |logit difference| between onnxruntime and torch per crowd size, on random
-    observations (with padded slots where the export allows more humans)."""
+    """Largest |difference| of the first output (logits, Q values or values) between
+    onnxruntime and torch per crowd size, on random observations (with padded slots where the
+    export allows more humans)."""
     from crowdplan.deploy.onnx_policy import OnnxPolicy
 
     policy, _ = load_model_policy(model)
+    module = export_spec(policy).module.eval()
     onnx_policy = OnnxPolicy(export_dir)
     rng = np.random.default_rng(0)
     result = {}
@@ -238,10 +323,11 @@ def verify_export(
         if padding < 0:
             continue
         robot, humans, mask = random_observations(rng, batch, n, padding)
-        feats = robot_centric(robot, humans, mask, policy.unicycle)
+        feats = robot_centric(robot, humans, mask, policy.kinematics == "unicycle")
         with torch.no_grad():
-            logits, _ = policy.actor(*(torch.from_numpy(x) for x in feats))
-        result[n] = max_abs_difference(onnx_policy.logits(robot, humans, mask), logits.numpy())
+            expected = module(*(torch.from_numpy(x) for x in feats))
+        first = expected if isinstance(expected, torch.Tensor) else expected[0]
+        result[n] = max_abs_difference(onnx_policy.outputs(robot, humans, mask)[0], first.numpy())
     return result
 
 

@@ -1,8 +1,10 @@
 """The JSON manifest that travels with an exported ONNX policy (numpy only, no torch).
 
-The manifest says everything a runtime needs besides the network: the kinematics and the action
-table the logits index, the action frame, the feature layout of the network's inputs, the largest
-crowd it was checked for, where it came from, and the SHA-256 of the ONNX file it describes.
+The manifest says everything a runtime needs besides the network: what the network computes (its
+kind, algorithm and, for value networks, the lookahead that turns values into actions), the
+kinematics and the action table its outputs index, the action frame, the feature layout of the
+network's inputs, the largest crowd it was checked for, where it came from, and the SHA-256 of the
+ONNX file it describes.
 """
 
 from __future__ import annotations
@@ -25,6 +27,13 @@ ONNX_FILE = "policy.onnx"
 INPUTS = ("robot", "humans", "mask")
 ROBOT_FEATURES = ("dist_to_goal", "v_pref", "theta_rel", "radius", "vx_rel", "vy_rel")
 HUMAN_FEATURES = ("px_rel", "py_rel", "vx_rel", "vy_rel", "radius", "distance", "radius_sum")
+# networks whose first output scores the 81 actions; the greedy action is its argmax
+ARGMAX_KINDS = ("dsac-policy", "a2c-policy", "dqn-policy")
+# a state-value network V(s); the greedy action comes from a one-step lookahead
+VALUE_KIND = "value-network"
+KINDS = (*ARGMAX_KINDS, VALUE_KIND)
+# the lookahead a robot can run: it predicts the humans itself (no simulator to ask)
+DEPLOYABLE_LOOKAHEAD = "constant_velocity"
 
 
 @dataclass(frozen=True)
@@ -32,9 +41,11 @@ class Manifest:
     """Description of one exported network.
 
     Attributes:
-        kind: what the network computes; "dsac-policy": features -> (logits over the action
-            table, attention) (a value network would be another kind).
-        outputs: output names in order ("logits" and, if the encoder has one, "attention").
+        kind: what the network computes: "dsac-policy" and "a2c-policy" (features -> logits
+            over the action table), "dqn-policy" (-> Q values over the action table) or
+            "value-network" (-> the state value V(s)).
+        outputs: output names in order: "logits", "q" or "value", then "attention" where the
+            network has per-human attention scores.
         max_humans: the largest crowd the export was checked for; a runtime refuses more.
         encoder: the encoder's name (raw, rg, aw, sa, lsa).
         kinematics, speed_sampling, v_pref, robot_radius, dt: the robot the model was trained for.
@@ -48,6 +59,11 @@ class Manifest:
         source_model: the model file that was exported.
         crowdplan_version: version of the exporting package.
         onnx_sha256: digest of the ONNX file.
+        algo: the training algorithm (dsac, a2c, dqn, value_rl).
+        network: the network exported: "actor", "q" or the value network (cadrl, lstm_rl, sarl).
+        lookahead: value networks only: how the humans' next states are predicted in the
+            one-step lookahead (only "constant_velocity" deploys).
+        gamma_step: value networks only: the lookahead's discount per step.
     """
 
     kind: str
@@ -69,11 +85,20 @@ class Manifest:
     onnx_sha256: str
     format: str = MANIFEST_FORMAT
     inputs: tuple[str, ...] = INPUTS
+    algo: str = "dsac"  # manifests written before other algorithms exported were DSAC's
+    network: str = "actor"
+    lookahead: str | None = None
+    gamma_step: float | None = None
 
     @property
     def has_attention(self) -> bool:
         """Whether the network's second output holds per-human attention scores."""
         return "attention" in self.outputs
+
+    @property
+    def is_value_network(self) -> bool:
+        """Whether the network is a state-value network acted on by a one-step lookahead."""
+        return self.kind == VALUE_KIND
 
     def to_json(self) -> dict[str, Any]:
         """Plain-data form written to ``manifest.json``."""
@@ -149,8 +174,49 @@ def load_manifest(export_dir: str | Path) -> tuple[Manifest, Path]:
             f"{path}: its action table is not the {manifest.kinematics} / "
             f"{manifest.speed_sampling} table of crowdplan.sim.actions"
         )
-    if manifest.action_frame == "world" and (
+    if manifest.kind not in KINDS:
+        raise ValueError(f"{path}: unknown kind {manifest.kind!r} (one of {', '.join(KINDS)})")
+    if manifest.is_value_network:
+        _check_value_fields(manifest, path)
+    elif manifest.action_frame == "world" and (
         manifest.goal_heading is None or not math.isfinite(manifest.goal_heading)
     ):
         raise ValueError(f"{path}: a world-frame model needs a finite goal_heading")
     return manifest, onnx_path
+
+
+def check_deployable_lookahead(mode: str | None) -> None:
+    """Raise ValueError unless a robot can run the lookahead ``mode`` by itself."""
+    if mode == "oracle":
+        raise ValueError(
+            "this value network was trained with the oracle lookahead, which reads the humans' "
+            "next states from the simulator; a robot has no simulator, so it cannot be deployed "
+            f"(train it with lookahead {DEPLOYABLE_LOOKAHEAD!r})"
+        )
+    if mode != DEPLOYABLE_LOOKAHEAD:
+        raise ValueError(
+            f"unknown lookahead {mode!r}: a deployed value network needs {DEPLOYABLE_LOOKAHEAD!r}"
+        )
+
+
+def _check_value_fields(manifest: Manifest, path: Path) -> None:
+    """A value network's manifest must say how the runtime turns values into actions."""
+    missing = [name for name in ("lookahead", "gamma_step") if getattr(manifest, name) is None]
+    if missing:
+        raise ValueError(
+            f"{path}: a value network's manifest needs {' and '.join(missing)} (the one-step "
+            "lookahead that chooses its actions): export it again"
+        )
+    try:
+        check_deployable_lookahead(manifest.lookahead)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None
+    gamma = manifest.gamma_step
+    if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not 0.0 <= gamma <= 1.0:
+        raise ValueError(f"{path}: gamma_step must lie in [0, 1], got {manifest.gamma_step}")
+    if manifest.goal_heading is not None:
+        raise ValueError(
+            f"{path}: a value network plans in the world frame and has no goal_heading"
+        )
+    if manifest.outputs[0] != "value":
+        raise ValueError(f"{path}: a value network's first output is 'value'")
