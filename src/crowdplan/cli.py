@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 from crowdplan import __version__
-from crowdplan.config import SCENARIOS
+from crowdplan.config import SCENARIOS, WorldConfig
 
 EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 1, 2, 130, 141
 RESULT_FILES = ("summary.json", "episodes.jsonl")
@@ -41,6 +41,12 @@ def _add_world_args(parser: argparse.ArgumentParser) -> None:
         help="world option, repeatable, e.g. visible_robot=true, kinematics=unicycle; keys and "
         "ranges: crowdplan.config.WorldConfig (default: the model's training world, else the "
         "WorldConfig defaults)",
+    )
+    parser.add_argument(
+        "--default-world",
+        action="store_true",
+        help="start from the default world (the paper's) instead of the model's training world; "
+        "the model keeps its kinematics, action frame and speeds (default: off)",
     )
 
 
@@ -75,6 +81,9 @@ def _world_config(args: argparse.Namespace, policy, base):
     warns once per option that differs from the world a trained model was trained in."""
     from crowdplan.policies import check_compatible, parse_options, world_differences
 
+    if args.default_world:
+        own = ("kinematics", "action_frame", "speed_sampling")
+        base = WorldConfig(**{key: getattr(base, key) for key in own})
     changes = parse_options(args.option, own_flags=("scenario", "humans"))
     if args.scenario is not None:
         changes["scenario"] = args.scenario

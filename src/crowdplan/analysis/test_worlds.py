@@ -6,7 +6,9 @@ in every world writes one result folder per world:
     python -m crowdplan.analysis.test_worlds --out results/generalization lsa-dsac orca straight
 
 Names are shipped models, run folders or model files; ``orca`` and ``straight`` are the built-in
-planners. Replayed pedestrians come from the held-out ETH/UCY scenes only (zara1, zara2, univ).
+planners. Every world starts from the default (the paper's) world, whatever world a model was
+trained in (``crowdplan eval --default-world``). Replayed pedestrians come from the held-out
+ETH/UCY scenes only (zara1, zara2, univ).
 """
 
 from __future__ import annotations
@@ -25,8 +27,8 @@ TEST_WORLDS: dict[str, tuple[str, list[str]]] = {
     "empty": ("no humans", ["--humans", "0"]),
     "circle-10": ("10 ORCA humans, circle radius 4 m", ["--humans", "10"]),
     "circle-20": (
-        "20 ORCA humans, circle radius 6 m",
-        ["--humans", "20", "--option", "circle_radius=6.0"],
+        "20 ORCA humans, circle radius 5.5 m (the smallest half-metre step that places all cases)",
+        ["--humans", "20", "--option", "circle_radius=5.5"],
     ),
     "square": ("square_crossing (the paper's transfer test)", ["--scenario", "square_crossing"]),
     "social-force": (
@@ -48,6 +50,7 @@ def eval_arguments(planner: str, world: str, out: Path, episodes: int) -> list[s
         "eval",
         *source,
         *options,
+        "--default-world",
         "--episodes",
         str(episodes),
         "--out",
