@@ -300,7 +300,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_output_args(p, "the --out file")
     p.set_defaults(func=cmd_render)
 
-    p = sub.add_parser("train", help="train a DSAC planner from a YAML config")
+    p = sub.add_parser(
+        "train", help="train a planner (DSAC, value RL, A2C, DQN) from a YAML config"
+    )
     p.add_argument(
         "--config",
         help="YAML config, e.g. configs/lsa_dsac.yaml (default: none; required for a new run)",
@@ -342,7 +344,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=cmd_train)
 
-    p = sub.add_parser("report", help="markdown tables from result and run folders")
+    p = sub.add_parser(
+        "report", help="HTML report (--out) or markdown tables (--fill) from result and run folders"
+    )
     p.add_argument("folders", nargs="*", help="folders searched for summary.json and runs")
     p.add_argument(
         "--fill",
