@@ -141,3 +141,16 @@ def test_manifest_must_match_the_world(exported_lsa):
         manifest.check_world(WorldConfig(kinematics="unicycle"))
     with pytest.raises(ValueError, match="speed_sampling"):
         manifest.check_world(WorldConfig(speed_sampling="exponential"))
+
+
+def test_manifest_from_before_other_algorithms_loads_as_dsac(tmp_path, exported_lsa):
+    copy = tmp_path / "old"
+    copy.mkdir()
+    (copy / "policy.onnx").write_bytes((exported_lsa / "policy.onnx").read_bytes())
+    manifest = json.loads((exported_lsa / MANIFEST_FILE).read_text())
+    for key in ("algo", "network", "lookahead", "gamma_step"):
+        manifest.pop(key)
+    (copy / MANIFEST_FILE).write_text(json.dumps(manifest))
+    policy = OnnxPolicy(copy)
+    assert (policy.manifest.algo, policy.manifest.network) == ("dsac", "actor")
+    assert policy.lookahead is None and policy.name == "lsa-dsac (onnx)"
