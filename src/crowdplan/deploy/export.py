@@ -80,9 +80,8 @@ def _names(module: nn.Module, first: str) -> tuple[str, ...]:
     """Output names of ``module``: ``first``, then "attention" if it returns scores."""
     with torch.no_grad():
         outputs = module(*_sample_inputs(1, 1))
-    return (
-        (first,) if isinstance(outputs, torch.Tensor) or len(outputs) == 1 else (first, "attention")
-    )
+    single = isinstance(outputs, torch.Tensor) or len(outputs) == 1
+    return (first,) if single else (first, "attention")
 
 
 @register_exporter(DSACPolicy)
@@ -140,7 +139,7 @@ class _WithEmptyRow(nn.Module):
         self.net = net
 
     def forward(self, robot, humans, mask):
-        humans = torch.cat([humans.new_zeros(humans.shape[0], 1, humans.shape[2]), humans], 1)
+        humans = torch.cat([humans.new_zeros(humans.shape[0], 1, humans.shape[2]), humans], dim=1)
         mask = torch.cat([mask.new_zeros(mask.shape[0], 1), mask], dim=1)
         return self.net(robot, humans, mask)
 
