@@ -22,14 +22,14 @@ CASES = evaluation.test_seeds(8)
 @pytest.fixture(scope="module")
 def exported_lsa(tmp_path_factory):
     """The shipped model exported once per test session (shared by the deploy test files)."""
-    folder = tmp_path_factory.getbasetemp() / "export-lsa-dsac"
+    folder = tmp_path_factory.getbasetemp() / "export-lsa-dsac-paper"
     if not (folder / MANIFEST_FILE).is_file():
-        export_model("lsa-dsac", folder)
+        export_model("lsa-dsac-paper", folder)
     return folder
 
 
 def test_noise_free_deployment_reproduces_eval(exported_lsa):
-    policy, world = load_model_policy("lsa-dsac")
+    policy, world = load_model_policy("lsa-dsac-paper")
     expected = evaluation.run_episodes(policy, world, CASES)
     records, stats = run_deployment(OnnxPolicy(exported_lsa), world, CASES)
     assert stats["safety_stop_share"] == 0.0
@@ -41,7 +41,7 @@ def test_noise_free_deployment_reproduces_eval(exported_lsa):
 
 def test_noise_is_seeded_and_latency_causes_initial_stops(exported_lsa):
     policy = OnnxPolicy(exported_lsa)
-    world = load_model_policy("lsa-dsac")[1]
+    world = load_model_policy("lsa-dsac-paper")[1]
     sensor = SensorModel(position_noise=0.05, drift=0.01, drop_rate=0.1, seed=3)
     first, _ = run_deployment(policy, world, CASES[:3], sensor)
     again, _ = run_deployment(policy, world, CASES[:3], sensor)

@@ -93,9 +93,9 @@ def test_shipped_model_export_has_attention_and_world_frame(exported_lsa):
 @pytest.fixture(scope="module")
 def exported_lsa(tmp_path_factory):
     """The shipped model exported once per test session (shared by the deploy test files)."""
-    folder = tmp_path_factory.getbasetemp() / "export-lsa-dsac"
+    folder = tmp_path_factory.getbasetemp() / "export-lsa-dsac-paper"
     if not (folder / MANIFEST_FILE).is_file():
-        export_model("lsa-dsac", folder)
+        export_model("lsa-dsac-paper", folder)
     return folder
 
 

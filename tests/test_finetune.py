@@ -49,7 +49,7 @@ def _random_states(rng, n, humans=3):
 
 
 def test_goal_frame_conversion_moves_the_robot_the_same_way():
-    path = resolve_model_path("lsa-dsac")  # trained with world-frame actions, goals along +y
+    path = resolve_model_path("lsa-dsac-paper")  # trained with world-frame actions, goals along +y
     payload = load_payload(path)
     world_policy, _ = load_dsac_payload(payload, path)
     goal_policy, world = load_dsac_payload(world_to_goal_frame(payload), path)
@@ -63,7 +63,7 @@ def test_goal_frame_conversion_moves_the_robot_the_same_way():
 
 
 def test_conversion_refuses_goal_frame_models():
-    payload = world_to_goal_frame(load_payload(resolve_model_path("lsa-dsac")))
+    payload = world_to_goal_frame(load_payload(resolve_model_path("lsa-dsac-paper")))
     with pytest.raises(ValueError, match="already acts in the goal frame"):
         world_to_goal_frame(payload)
 

@@ -62,5 +62,5 @@ def test_model_for_another_action_space_is_refused(tmp_path):
 
 
 def test_shipped_model_loads_by_name():
-    policy, world = load_model_policy("lsa-dsac")
+    policy, world = load_model_policy("lsa-dsac-paper")
     assert world.humans == 5 and policy.metadata["encoder"] == "lsa"

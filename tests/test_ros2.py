@@ -31,9 +31,9 @@ def exported_lsa(tmp_path_factory):
     """The shipped model exported once per test session (shared by the deploy test files)."""
     from crowdplan.deploy.export import export_model
 
-    folder = tmp_path_factory.getbasetemp() / "export-lsa-dsac"
+    folder = tmp_path_factory.getbasetemp() / "export-lsa-dsac-paper"
     if not (folder / "manifest.json").is_file():
-        export_model("lsa-dsac", folder)
+        export_model("lsa-dsac-paper", folder)
     return folder
 
 
@@ -58,7 +58,7 @@ def test_loopback_robot_reaches_goal_among_five_humans(ros_localhost, exported_l
     from crowdplan.deploy.onnx_policy import OnnxPolicy
     from crowdplan.deploy.ros2 import build_node
 
-    _, world_config = load_model_policy("lsa-dsac")
+    _, world_config = load_model_policy("lsa-dsac-paper")
     world = World(world_config.replace(dt=1.0 / RATE), 1)
     world.reset([1000])
     humans = [f"h{k}" for k in range(world_config.humans)]
