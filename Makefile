@@ -4,7 +4,7 @@ PY := $(VENV)/bin/python
 BIN := $(VENV)/bin
 DEMO := runs/demo
 
-.PHONY: setup demo test format bench publish ship results-doc results-orca records report
+.PHONY: setup demo test format bench publish ship results-doc results-orca records report generalization
 
 setup: $(VENV)/.installed
 
@@ -16,8 +16,8 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 demo: setup
-	$(BIN)/crowdplan eval --model lsa-dsac --episodes 500 --out $(DEMO)/lsa-dsac-circle --force
-	$(BIN)/crowdplan render --model lsa-dsac --case 0 --out $(DEMO)/lsa-dsac-case0.gif --force
+	$(BIN)/crowdplan eval --model lsa-dsac --default-world --episodes 500 --out $(DEMO)/lsa-dsac-circle --force
+	$(BIN)/crowdplan render --model lsa-dsac --default-world --case 0 --out $(DEMO)/lsa-dsac-case0.gif --force
 
 test: setup
 	$(BIN)/ruff check src tests benchmarks
@@ -58,14 +58,21 @@ results-doc: setup
 # Trajectory records (crowdplan eval --record) of the 500 test cases that the report's strategy and
 # attention analyses read: shipped models, ORCA, the blind baseline and two encoder runs on
 # circle_crossing; the paper-faithful model and ORCA also on square_crossing.
-RECORD_CIRCLE := --model=lsa-dsac --model=lsa-dsac-paper-goal --policy=orca --policy=straight \
+RECORD_CIRCLE := --model=lsa-dsac --model=lsa-dsac-paper --model=lsa-dsac-paper-goal \
+	--policy=orca --policy=straight \
 	--model=results/train/rg_dsac_ent05-s0 --model=results/train/sa_dsac_ent05-s0
-RECORD_SQUARE := --model=lsa-dsac --policy=orca
+RECORD_SQUARE := --model=lsa-dsac --model=lsa-dsac-paper --policy=orca
 records: setup
-	for p in $(RECORD_CIRCLE); do $(BIN)/crowdplan eval $$p --episodes 500 --record --force -q \
+	for p in $(RECORD_CIRCLE); do $(BIN)/crowdplan eval $$p --default-world --episodes 500 --record --force -q \
 		--out results/records/circle/$$(basename $${p#*=}) > /dev/null || exit 1; done
-	for p in $(RECORD_SQUARE); do $(BIN)/crowdplan eval $$p --episodes 500 --record --force -q \
+	for p in $(RECORD_SQUARE); do $(BIN)/crowdplan eval $$p --default-world --episodes 500 --record --force -q \
 		--scenario square_crossing --out results/records/square/$$(basename $${p#*=}) > /dev/null || exit 1; done
+
+# Every shipped planner in every generalisation test world (docs/generalization.md).
+PLANNERS := lsa-dsac lsa-dsac-paper lsa-dsac-paper-goal orca straight
+generalization: setup
+	$(PY) -m crowdplan.analysis.test_worlds --out results/generalization $(PLANNERS)
+	$(BIN)/crowdplan report --fill docs/generalization.md
 
 # The evaluation report (docs/report.md): an HTML page with every table and figure, from the
 # committed result folders; then the tables of docs/results.md.

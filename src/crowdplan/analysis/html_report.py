@@ -549,7 +549,7 @@ def robustness_table(train: Path) -> Table:
 def transfer_section(generalization: Path, train: Path) -> Section:
     commands = [
         "python -m crowdplan.analysis.test_worlds --out results/generalization lsa-dsac "
-        "lsa-dsac-paper lsa-dsac-paper-goal orca straight",
+        "lsa-dsac-paper lsa-dsac-paper-goal orca straight  # make generalization",
     ]
     table, *tests = transfer_tables(generalization)
     tables = [table, robustness_table(train), *tests]
