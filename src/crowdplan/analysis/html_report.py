@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from crowdplan.analysis import attention, curves, stats, strategies
-from crowdplan.analysis.report import training_table
+from crowdplan.analysis.report import TRAINING_HEADER, training_rows
 from crowdplan.evaluation import format_interval, format_value
 from crowdplan.evaluation_records import (
     RecordedRun,
@@ -441,25 +441,11 @@ def curves_section(train: Path) -> Section:
     section.tables.append(
         Table(
             "Training time",
-            [
-                "run",
-                "seed",
-                "episodes",
-                "env steps",
-                "h / 10k episodes",
-                "last val success",
-                "last val reward",
-                "best val reward",
-            ],
-            [
-                line.strip("|").split(" | ")
-                for line in training_table([r.folder for r in runs]).splitlines()[2:]
-            ],
+            TRAINING_HEADER,
+            training_rows([r.folder for r in runs]),
             note="Hours per 10k episodes on the machines of docs/results.md, not the paper's.",
         )
     )
-    for table in section.tables:
-        table.rows = [[c.strip() for c in row] for row in table.rows]
     return section
 
 

@@ -78,41 +78,46 @@ def summary_table(paths: list[Path]) -> str:
     return "\n".join(lines)
 
 
-def training_table(run_dirs: list[Path]) -> str:
-    """Training progress of run folders: episodes, hours per 10k episodes, last validation."""
-    header = [
-        "run",
-        "seed",
-        "episodes",
-        "env steps",
-        "h / 10k episodes",
-        "last val success",
-        "last val reward",
-        "best val reward",
-    ]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+TRAINING_HEADER = [
+    "run",
+    "seed",
+    "episodes",
+    "env steps",
+    "h / 10k episodes",
+    "last val success",
+    "last val reward",
+    "best val reward",
+]
+
+
+def training_rows(run_dirs: list[Path]) -> list[list[str]]:
+    """One row of :data:`TRAINING_HEADER` per run folder."""
+    rows = []
     for run in run_dirs:
         meta = json.loads((run / "meta.json").read_text())
         with open(run / "validation.csv") as f:
-            rows = list(csv.DictReader(f))
-        last = rows[-1] if rows else {}
-        best = max((float(r["mean_reward"]) for r in rows), default=float("nan"))
-        lines.append(
-            "| "
-            + " | ".join(
-                [
-                    str(run),
-                    str(meta["seed"]),
-                    str(meta["episodes"]),
-                    str(meta["env_steps"]),
-                    f"{meta['hours_per_10k_episodes']:.2f}",
-                    f"{float(last.get('success_rate', 'nan')):.3f}",
-                    f"{float(last.get('mean_reward', 'nan')):.3f}",
-                    f"{best:.3f}",
-                ]
-            )
-            + " |"
+            validations = list(csv.DictReader(f))
+        last = validations[-1] if validations else {}
+        best = max((float(r["mean_reward"]) for r in validations), default=float("nan"))
+        rows.append(
+            [
+                str(run),
+                str(meta["seed"]),
+                str(meta["episodes"]),
+                str(meta["env_steps"]),
+                f"{meta['hours_per_10k_episodes']:.2f}",
+                f"{float(last.get('success_rate', 'nan')):.3f}",
+                f"{float(last.get('mean_reward', 'nan')):.3f}",
+                f"{best:.3f}",
+            ]
         )
+    return rows
+
+
+def training_table(run_dirs: list[Path]) -> str:
+    """Training progress of run folders: episodes, hours per 10k episodes, last validation."""
+    lines = ["| " + " | ".join(TRAINING_HEADER) + " |", "|" + "---|" * len(TRAINING_HEADER)]
+    lines += ["| " + " | ".join(row) + " |" for row in training_rows(run_dirs)]
     return "\n".join(lines)
 
 
