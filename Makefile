@@ -59,7 +59,7 @@ results-doc: setup
 # attention analyses read: shipped models, ORCA, the blind baseline and two encoder runs on
 # circle_crossing; the paper-faithful model and ORCA also on square_crossing.
 RECORD_CIRCLE := --model=lsa-dsac --model=lsa-dsac-paper --model=lsa-dsac-paper-goal \
-	--policy=orca --policy=straight \
+	--model=lstm-a2c --policy=orca --policy=straight \
 	--model=results/train/rg_dsac_ent05-s0 --model=results/train/sa_dsac_ent05-s0
 RECORD_SQUARE := --model=lsa-dsac --model=lsa-dsac-paper --policy=orca
 records: setup

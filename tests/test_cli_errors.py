@@ -144,7 +144,7 @@ WARNED = [
 @pytest.mark.parametrize(("extra", "fragment"), WARNED)
 def test_model_in_another_world_is_warned(extra, fragment, tmp_path, capsys):
     out = tmp_path / "res"
-    argv = ["eval", "--model", "lsa-dsac", "--episodes", "1", "-q", "--out", str(out), *extra]
+    argv = ["eval", "--model", "lsa-dsac-paper", "--episodes", "1", "-q", "--out", str(out), *extra]
     assert main(argv) == 0
     warnings = [x for x in capsys.readouterr().err.splitlines() if "warning" in x]
     assert len(warnings) == 1 and fragment in warnings[0]

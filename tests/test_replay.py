@@ -128,3 +128,9 @@ def test_replay_mixture_and_rotation():
     world.reset([2000, 2001, 2002, 2003])
     for _ in range(5):
         world.step(np.array([5, 5, 5, 5]))
+
+
+def test_replay_case_of_a_world_without_humans_is_an_empty_scene():
+    config = WorldConfig(humans=0, replay_fraction=1.0)
+    state = scenarios.generate(config, 1000)
+    assert state.human_pos.shape == (0, 2)

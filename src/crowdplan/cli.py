@@ -148,6 +148,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.out:
         meta = run_metadata(policy, config, seeds, args.split)
         meta["wall_seconds"] = elapsed
+        meta["default_world"] = args.default_world
         if args.record:
             from crowdplan.evaluation_records import write_records
 

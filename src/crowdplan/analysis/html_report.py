@@ -113,6 +113,8 @@ def eval_command(folder: Path, summary: dict, record: bool = False) -> str:
     else:
         source = f"--policy {meta.get('policy', '?')}"
     parts = ["crowdplan eval", source]
+    if meta.get("default_world"):
+        parts.append("--default-world")
     if world.get("scenario", "circle_crossing") != "circle_crossing":
         parts.append(f"--scenario {world['scenario']}")
     if world.get("humans", 5) != 5:

@@ -229,7 +229,7 @@ def _normalised(config, start, goal, track, present) -> InitialState:
     rot = np.array([[cos, -sin], [sin, cos]])
     track = (track - (start + goal) / 2) @ rot.T
     n = len(track)
-    last = np.array([np.flatnonzero(p)[-1] for p in present])
+    last = np.array([np.flatnonzero(p)[-1] for p in present], dtype=np.int64)
     velocity = np.where(
         (present[:, 0] & present[:, 1])[:, None], (track[:, 1] - track[:, 0]) / config.dt, 0.0
     )
