@@ -43,3 +43,13 @@ def test_default_world_drops_the_training_mixture_but_keeps_the_action_interface
     )
     world = _world_config(args, OrcaPlanner(), trained)
     assert world == WorldConfig(action_frame="world", goal_rotation=90.0)
+
+
+def test_default_world_warns_in_one_line(capsys):
+    from crowdplan.cli import main as crowdplan
+
+    assert (
+        crowdplan(["eval", "--model", "lsa-dsac", "--default-world", "--episodes", "1", "-q"]) == 0
+    )
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert len(warnings) == 1 and "--default-world evaluates it in the paper's world" in warnings[0]

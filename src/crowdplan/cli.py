@@ -78,7 +78,8 @@ def _warn(command: str, message: str) -> None:
 
 def _world_config(args: argparse.Namespace, policy, base):
     """The model's (or default) world with the command line's scenario, humans and options;
-    warns once per option that differs from the world a trained model was trained in."""
+    warns once per option that differs from the world a trained model was trained in (one line
+    in all with ``--default-world``, which asks for another world on purpose)."""
     from crowdplan.policies import check_compatible, parse_options, world_differences
 
     if args.default_world:
@@ -91,7 +92,16 @@ def _world_config(args: argparse.Namespace, policy, base):
         changes["humans"] = args.humans
     config = base.replace(**changes)
     check_compatible(policy, config)
-    for key, (trained, now) in world_differences(policy, config).items():
+    differences = world_differences(policy, config)
+    if args.default_world and differences:
+        # asked for explicitly: one line that names what differs, not one line per option
+        _warn(
+            args.command,
+            f"model {policy.name} was trained in another world ({', '.join(differences)} "
+            "differ); --default-world evaluates it in the paper's world",
+        )
+        return config
+    for key, (trained, now) in differences.items():
         _warn(
             args.command,
             f"model {policy.name} was trained with {key}={trained}, this world has {key}={now}",
