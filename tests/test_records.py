@@ -56,7 +56,7 @@ def test_cli_folder_loads_and_scores_of_a_model_are_kept(recorded, tmp_path):
     run = load_recorded(recorded)
     assert len(run.episodes) == len(run.records) == 4 and run.name == "orca"
     out = tmp_path / "lsa"
-    argv = ["eval", "--model", "lsa-dsac", "--episodes", "2", "-q", "--record"]
+    argv = ["eval", "--model", "lsa-dsac", "--default-world", "--episodes", "2", "-q", "--record"]
     assert main([*argv, "--out", str(out)]) == 0
     model = load_recorded(out)
     scores = model.records.trace(0).scores

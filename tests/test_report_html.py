@@ -23,7 +23,8 @@ def results(tmp_path_factory):
     circle = root / "records" / "circle"
     for source in (["--model", "lsa-dsac"], ["--policy", "orca"]):
         out = circle / source[1]
-        argv = ["eval", *source, "--episodes", "3", "--record", "-q", "--out", str(out)]
+        argv = ["eval", *source, "--default-world", "--episodes", "3", "--record", "-q"]
+        argv += ["--out", str(out)]
         assert main(argv) == 0
         shutil.copytree(out, root / "generalization" / "circle" / source[1])
     run = root / "train" / RUN.name
@@ -49,7 +50,7 @@ def test_report_files_and_tables(page):
     assert text.count("<table>") == markdown.count("\n|---") >= 8
     for heading in ("Strategies", "Interpretability", "Training curves", "Transfer", "Paired"):
         assert heading in text
-    assert "crowdplan eval --model lsa-dsac --episodes 3 --record --out" in text  # commands
+    assert "crowdplan eval --model lsa-dsac --default-world --episodes 3 --record --out" in text
     assert "src='data:image/gif;base64," in text and "paper: LSA-DSAC" in text
 
 
