@@ -1,6 +1,7 @@
 """``crowdplan train``: what --resume and --out refuse, and that config.yaml and meta.json agree."""
 
 import json
+from pathlib import Path
 
 import pytest
 import yaml
@@ -97,3 +98,20 @@ def test_parallel_update_flag_is_refused_for_other_algorithms(tmp_path, capsys):
     argv = ["train", "--config", str(config), "--out", str(tmp_path / "run"), "--parallel-update"]
     assert main(argv) == 2
     assert "applies to DSAC's two-thread update; this run trains 'a2c'" in capsys.readouterr().err
+
+
+def test_lookahead_flag_sets_the_value_rl_mode_and_is_refused_elsewhere(tmp_path, capsys):
+    config = tmp_path / "sarl.yaml"
+    data = yaml.safe_load(Path("configs/sarl.yaml").read_text())
+    data.update(episodes=1, test_episodes=0, val_episodes=1, val_interval=1)
+    data["value_rl"].update(il_episodes=0)
+    config.write_text(yaml.safe_dump(data))
+    run = tmp_path / "run"
+    argv = ["train", "--config", str(config), "--out", str(run), "--lookahead", "oracle", "-q"]
+    assert main(argv) == 0
+    assert yaml.safe_load((run / "config.yaml").read_text())["value_rl"]["lookahead"] == "oracle"
+    dsac = ["train", "--config", "configs/lsa_dsac_ent05.yaml", "--out", str(tmp_path / "d")]
+    assert main([*dsac, "--lookahead", "oracle"]) == 2
+    assert "--lookahead applies to the value-network baselines" in capsys.readouterr().err
+    assert main(["train", "--out", str(run), "--resume", "--lookahead", "oracle"]) == 2
+    assert "--lookahead cannot apply" in capsys.readouterr().err

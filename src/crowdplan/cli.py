@@ -347,6 +347,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="critic and policy halves of each update on two threads (bitwise the same results; "
         "may change on --resume) (default: the config's dsac.parallel_update)",
     )
+    p.add_argument(
+        "--lookahead",
+        choices=("constant_velocity", "oracle"),
+        default=None,
+        help="value-network baselines: humans' next states in the one-step lookahead, propagated "
+        "at constant velocity or queried from the simulator (CrowdNav) (default: the config's "
+        "value_rl.lookahead)",
+    )
     p.add_argument("--out", default=None, help="run folder (default: runs/<name>-s<seed>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument(

@@ -22,6 +22,14 @@ def _new_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
         config = dataclasses.replace(config, seed=args.seed)
     if args.humans is not None:
         config = dataclasses.replace(config, world=config.world.replace(humans=args.humans))
+    if args.lookahead is not None:
+        if not hasattr(config.algo_config, "lookahead"):
+            raise ValueError(
+                f"--lookahead applies to the value-network baselines (algo: value_rl); this run "
+                f"trains {config.algo!r}"
+            )
+        params = dataclasses.replace(config.algo_config, lookahead=args.lookahead)
+        config = dataclasses.replace(config, algo_config=params)
     run_dir = Path(args.out or f"runs/{config.name}-s{config.seed}")
     if (run_dir / "checkpoint.pt").exists():
         raise ValueError(f"{run_dir} already holds a run; use --resume or another --out")
@@ -45,6 +53,7 @@ def _resumed_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
             ("--config", args.config),
             ("--seed", args.seed),
             ("--humans", args.humans),
+            ("--lookahead", args.lookahead),
         )
         if value is not None
     ]
