@@ -209,7 +209,7 @@ def _crowdplan(*args: str) -> list[str]:
 
 
 def test_ctrl_c_during_eval(tmp_path):
-    argv = _crowdplan("eval", "--batch-size", "5", "--out", str(tmp_path / "res"))
+    argv = _crowdplan("eval", "--batch-size", "1", "--humans", "10", "--out", str(tmp_path / "res"))
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     first = proc.stderr.readline()  # the first progress line: episodes are running
     assert first.startswith("eval orca: "), first
