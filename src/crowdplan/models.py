@@ -45,11 +45,20 @@ def _shipped_dirs() -> tuple[Path, ...]:
 SHIPPED_DIRS = _shipped_dirs()
 
 
-class DSACPolicy:
-    """Greedy (argmax) DSAC policy over raw observations; exposes attention as per-human scores."""
+class GreedyPolicy:
+    """The argmax over a network's per-action outputs, on raw observations.
 
-    def __init__(self, actor: Actor, world: WorldConfig, name: str, metadata: dict | None = None):
-        self.actor = actor.eval()
+    ``network(robot, humans, mask)`` returns ``(per-action scores (B, A), second output)``; the
+    second output is the per-human attention when ``attention_output`` (DSAC actors, Q
+    networks), something else otherwise (an A2C critic's value).
+    """
+
+    attention_output = True
+
+    def __init__(
+        self, network: torch.nn.Module, world: WorldConfig, name: str, metadata: dict | None = None
+    ):
+        self.network = network
         self.world = world
         self.name = name
         self.metadata = metadata or {}
@@ -59,12 +68,18 @@ class DSACPolicy:
     @torch.no_grad()
     def act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> PolicyOutput:
         feats = robot_centric(robot, humans, mask, self.unicycle)
-        device = next(self.actor.parameters()).device
-        logits, attention = self.actor(
-            *(torch.from_numpy(x).to(device) for x in (feats.robot, feats.humans, feats.mask))
-        )
-        actions = logits.argmax(dim=1).cpu().numpy()
-        return PolicyOutput(actions, None if attention is None else attention.cpu().numpy())
+        device = next(self.network.parameters()).device
+        scores, second = self.network(*(torch.from_numpy(x).to(device) for x in feats))
+        attention = second.cpu().numpy() if self.attention_output and second is not None else None
+        return PolicyOutput(scores.argmax(dim=1).cpu().numpy(), attention)
+
+
+class DSACPolicy(GreedyPolicy):
+    """Greedy (argmax) DSAC policy over raw observations; exposes attention as per-human scores."""
+
+    def __init__(self, actor: Actor, world: WorldConfig, name: str, metadata: dict | None = None):
+        super().__init__(actor.eval(), world, name, metadata)
+        self.actor = actor
 
 
 def model_payload(

@@ -35,10 +35,9 @@ from torch import Tensor, nn
 from crowdplan.algos.base import Observation, Transitions
 from crowdplan.algos.dsac_agent import observation_features
 from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
-from crowdplan.features import robot_centric
+from crowdplan.models import GreedyPolicy
 from crowdplan.nets.heads import PolicyHead, ValueHead
 from crowdplan.nets.lstm_rl import LSTMRLEncoder
-from crowdplan.policy import PolicyOutput
 from crowdplan.sim.actions import N_ACTIONS
 
 if TYPE_CHECKING:
@@ -154,25 +153,16 @@ def _tensors(feats: Any, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:
     return tuple(torch.from_numpy(np.ascontiguousarray(x)).to(device) for x in feats)
 
 
-class A2CPolicy:
+class A2CPolicy(GreedyPolicy):
     """Greedy LSTM-A2C policy (argmax of the actor's logits) over raw observations."""
+
+    attention_output = False  # the network's second output is the critic's value
 
     def __init__(
         self, net: ActorCritic, world: WorldConfig, name: str, metadata: dict | None = None
     ):
+        super().__init__(net, world, name, metadata)
         self.net = net
-        self.world = world
-        self.name = name
-        self.metadata = metadata or {}
-        self.kinematics = world.kinematics
-        self.unicycle = world.kinematics == "unicycle"
-
-    @torch.no_grad()
-    def act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> PolicyOutput:
-        feats = robot_centric(robot, humans, mask, self.unicycle)
-        device = next(self.net.parameters()).device
-        logits, _ = self.net(*_tensors(feats, device))
-        return PolicyOutput(logits.argmax(dim=1).cpu().numpy())
 
 
 class A2CAgent:

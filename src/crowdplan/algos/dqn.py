@@ -24,9 +24,8 @@ from crowdplan.algos.base import Observation, Transitions
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.dsac_agent import observation_features
 from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
-from crowdplan.features import robot_centric
+from crowdplan.models import GreedyPolicy
 from crowdplan.nets.encoders import Encoder, EncoderConfig, make_encoder, mlp
-from crowdplan.policy import PolicyOutput
 from crowdplan.sim.actions import N_ACTIONS
 
 if TYPE_CHECKING:
@@ -91,24 +90,12 @@ def double_dqn_target(
     return reward + gamma * (1.0 - done) * next_q_target.gather(1, best).squeeze(1)
 
 
-class DQNPolicy:
+class DQNPolicy(GreedyPolicy):
     """Greedy policy (argmax of Q) over raw observations; the encoder's attention as scores."""
 
     def __init__(self, q: QNetwork, world: WorldConfig, name: str, metadata: dict | None = None):
+        super().__init__(q, world, name, metadata)
         self.q = q
-        self.world = world
-        self.name = name
-        self.metadata = metadata or {}
-        self.kinematics = world.kinematics
-        self.unicycle = world.kinematics == "unicycle"
-
-    @torch.no_grad()
-    def act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> PolicyOutput:
-        feats = robot_centric(robot, humans, mask, self.unicycle)
-        device = next(self.q.parameters()).device
-        q, attention = self.q(*(torch.from_numpy(x).to(device) for x in feats))
-        scores = None if attention is None else attention.cpu().numpy()
-        return PolicyOutput(q.argmax(dim=1).cpu().numpy(), scores)
 
 
 class DQNAgent:
