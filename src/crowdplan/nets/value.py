@@ -48,7 +48,7 @@ class ValueNetwork(nn.Module):
     def forward(
         self, robot: Tensor, humans: Tensor, mask: Tensor
     ) -> tuple[Tensor, Tensor | None]:  # pragma: no cover - interface
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} must implement forward()")
 
 
 class CADRL(ValueNetwork):
