@@ -149,6 +149,22 @@ def test_target_entropy_follows_a_linear_schedule():
     assert DSAC(DSACConfig(), ENCODER).target_entropy == pytest.approx(0.98 * math.log(81))
 
 
+def test_an_absolute_target_entropy_overrides_the_scale_and_below_zero_only_lowers_alpha():
+    # ALN-DSAC's setting: -162 with log alpha = 0. A deterministic policy (entropy ~ 0) is still
+    # above the target, so even then the temperature falls.
+    agent = DSAC(DSACConfig(target_entropy=-162.0, init_alpha=1.0), ENCODER)
+    assert agent.target_entropy == -162.0
+    with torch.no_grad():
+        agent.actor.head.net[-1].bias[3] = 50.0
+    batch = small_batch()
+    alphas = [agent.alpha]
+    for _ in range(3):
+        stats = agent.update(batch)
+        assert stats["entropy"] < 0.01
+        alphas.append(agent.alpha)
+    assert alphas == sorted(alphas, reverse=True) and alphas[-1] < 1.0
+
+
 @pytest.mark.parametrize("share_encoder", [False, True])
 def test_two_thread_update_is_bitwise_identical_with_every_option(share_encoder):
     serial = DSAC(DSACConfig(share_encoder=share_encoder, **ALL_ON), ENCODER, seed=4)

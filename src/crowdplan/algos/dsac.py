@@ -41,6 +41,9 @@ class DSACConfig:
         batch_size: transitions per update.
         tau: Polyak coefficient of the target critic, ``target <- (1 - tau) target + tau critic``.
         target_entropy_scale: target entropy = scale * log(n_actions).
+        target_entropy: an absolute target entropy instead of the scale (None: use the scale).
+            ALN-DSAC's public code sets -162 (minus the action dimension), which no discrete
+            policy can reach, so the temperature only ever decreases (docs/training.md).
         init_alpha: initial temperature.
         autotune_alpha: learn log(alpha) towards the target entropy; False keeps ``init_alpha``.
         n_actions: size of the discrete action set (SPEC: 81).
@@ -83,6 +86,7 @@ class DSACConfig:
     batch_size: int = spec(128, low=1)
     tau: float = spec(0.005, low=0.0, high=1.0)
     target_entropy_scale: float = 0.98
+    target_entropy: float | None = None
     init_alpha: float = spec(0.2, low=0.0, low_open=True)
     autotune_alpha: bool = True
     n_actions: int = spec(81, low=2)
@@ -222,9 +226,12 @@ class DSAC:
 
     @property
     def target_entropy(self) -> float:
-        """Target entropy of the next update: ``scale * log(n_actions)``, the scale following
-        the schedule of ``target_entropy_anneal_updates``."""
+        """Target entropy of the next update: ``target_entropy`` when set, else
+        ``scale * log(n_actions)``, the scale following the schedule of
+        ``target_entropy_anneal_updates``."""
         config = self.config
+        if config.target_entropy is not None:
+            return config.target_entropy
         scale = config.target_entropy_scale
         if self.n_updates < config.target_entropy_anneal_updates:
             progress = self.n_updates / config.target_entropy_anneal_updates
