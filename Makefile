@@ -35,12 +35,15 @@ bench: setup
 # Copy the small artefacts of a training run into results/ and test its best model on the 500
 # circle_crossing and the 500 square_crossing (transfer) test cases:
 #   make publish RUN=runs/lsa_dsac-s0
+# EVAL_ARGS go to both evaluations, e.g. EVAL_ARGS="--humans 5" for CADRL, which trains with one
+# human and is tested, as in the paper, with five.
+EVAL_ARGS ?=
 publish: setup
 	@test -n "$(RUN)" || (echo "usage: make publish RUN=runs/<run>"; exit 2)
 	mkdir -p results/train/$(notdir $(RUN))
 	cp $(addprefix $(RUN)/,config.yaml meta.json episodes.csv validation.csv updates.csv curves.png best_model.pt) results/train/$(notdir $(RUN))/
-	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --out results/train/$(notdir $(RUN))/test --force
-	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --scenario square_crossing --out results/train/$(notdir $(RUN))/test-square --force
+	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 $(EVAL_ARGS) --out results/train/$(notdir $(RUN))/test --force
+	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --scenario square_crossing $(EVAL_ARGS) --out results/train/$(notdir $(RUN))/test-square --force
 
 # Make a published run's best-validation model the shipped model NAME (default lsa-dsac):
 #   make ship RUN=results/train/<run> [NAME=lstm-a2c]
