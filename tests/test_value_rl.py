@@ -131,6 +131,35 @@ def test_value_target_on_a_hand_made_chain(tmp_path):
     np.testing.assert_allclose(values.numpy(), [g, 1.0, 0.5 + g], atol=0.02)
 
 
+def _cache_matches_the_target_network(agent) -> None:
+    slots = np.arange(len(agent.buffer))
+    after = agent.buffer.gather(slots, ("next_robot", "next_humans", "next_mask"))
+    with torch.no_grad():
+        values, _ = agent.target(after["next_robot"], after["next_humans"], after["next_mask"])
+    np.testing.assert_allclose(agent.next_values[slots], values.numpy(), rtol=0, atol=1e-6)
+
+
+def test_cached_target_values_follow_new_transitions_and_target_copies(tmp_path):
+    agent = _train(tmp_path, "run", episodes=4).agent
+    agent.batch_credit = 1
+    agent.update()
+    _cache_matches_the_target_network(agent)
+    # five new transitions (copies of stored ones with other rewards), then a target copy
+    full = agent.buffer.gather(np.arange(len(agent.buffer)), tuple(agent.buffer.data))
+    batch = [full[k][:5].numpy() for k in agent.buffer.data]
+    batch[4] = batch[4] + 1.0
+    agent.buffer.add_batch(*batch)
+    agent.batch_credit = 1
+    agent.update()
+    _cache_matches_the_target_network(agent)
+    agent.episodes_done(agent.episodes + agent.params.target_update_episodes)
+    assert agent.values_stale
+    agent.batch_credit = 1
+    agent.update()
+    _cache_matches_the_target_network(agent)
+
+
+# ---------------------------------------------------------------------- runs
 # ---------------------------------------------------------------------- runs
 def _train(tmp_path, name, episodes=6, **changes):
     config = dataclasses.replace(config_from_dict(TINY), episodes=episodes, **changes)

@@ -45,6 +45,7 @@ class ReplayBuffer:
         self.rng = np.random.default_rng(seed)
         self.pos = 0  # next slot to write
         self.size = 0
+        self.added = 0  # transitions ever added (tells a cache of derived values what is new)
         self.data: dict[str, np.ndarray] = {
             name: np.zeros((capacity, *(max_humans if d == "H" else d for d in shape)), dtype=dtype)
             for name, (shape, dtype) in _FIELDS.items()
@@ -100,6 +101,13 @@ class ReplayBuffer:
             self.data[name][index] = value
         self.pos = (self.pos + n) % self.capacity
         self.size = min(self.size + n, self.capacity)
+        self.added += n
+
+    def recent_slots(self, count: int) -> np.ndarray:
+        """Slots of the ``count`` most recently added transitions (all slots when ``count`` is
+        at least the number stored)."""
+        count = min(count, self.size)
+        return (self.pos - count + np.arange(count)) % self.capacity
 
     def sample(
         self, batch_size: int, device: torch.device | str = "cpu"
@@ -109,12 +117,19 @@ class ReplayBuffer:
         Returns a dict with the keys of :meth:`add_batch` holding torch tensors (float32, except
         ``mask``/``next_mask`` bool and ``action`` int64).
         """
+        return self.gather(self.sample_index(batch_size), tuple(self.data), device)
+
+    def sample_index(self, batch_size: int) -> np.ndarray:
+        """Slots of ``batch_size`` transitions drawn uniformly with replacement."""
         if self.size == 0:
             raise ValueError("cannot sample from an empty replay buffer")
-        index = self.rng.integers(0, self.size, size=batch_size)
-        return {
-            name: torch.from_numpy(array[index]).to(device) for name, array in self.data.items()
-        }
+        return self.rng.integers(0, self.size, size=batch_size)
+
+    def gather(
+        self, index: np.ndarray, names: tuple[str, ...], device: torch.device | str = "cpu"
+    ) -> dict[str, torch.Tensor]:
+        """The fields ``names`` of the transitions in slots ``index``, as torch tensors."""
+        return {name: torch.from_numpy(self.data[name][index]).to(device) for name in names}
 
     def state_dict(self) -> dict[str, Any]:
         """Contents (as torch tensors, so ``torch.load(weights_only=True)`` works), write
@@ -124,6 +139,7 @@ class ReplayBuffer:
             "max_humans": self.max_humans,
             "pos": self.pos,
             "size": self.size,
+            "added": self.added,
             "rng_state": self.rng.bit_generator.state,
             "data": {k: torch.from_numpy(v[: self.size].copy()) for k, v in self.data.items()},
         }
@@ -138,6 +154,7 @@ class ReplayBuffer:
             )
         self.pos = int(state["pos"])
         self.size = int(state["size"])
+        self.added = int(state.get("added", self.size))  # checkpoints before the counter
         self.rng.bit_generator.state = state["rng_state"]
         for name, value in state["data"].items():
             self.data[name][: self.size] = value.numpy()

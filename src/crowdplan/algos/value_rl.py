@@ -13,8 +13,12 @@ The recipe of CrowdNav's value-based baselines, batched over the loop's environm
    value network every ``target_update_episodes`` episodes.
 
 ``gamma_step = gamma ** (dt * v_pref)``: ``gamma`` is the discount per second of travel at the
-preferred speed. Differences from CrowdNav (docs/baselines.md): targets are computed when a
-batch is drawn, with the current target network, instead of once when the episode is stored;
+preferred speed. The target network only changes when it is copied, so ``V_target(s')`` of every
+stored transition is computed once per copy, in large batches, and cached beside the replay
+buffer (new transitions get theirs before the next update): the same targets as evaluating the
+target network on every drawn batch, at a fraction of the cost. Differences from CrowdNav
+(docs/baselines.md): targets use the current target network, not the one of the time the
+episode was stored;
 a time-limit truncation bootstraps instead of ending the return; candidates that end the episode
 (collision, goal) are scored by their reward alone.
 """
@@ -170,6 +174,10 @@ class ValueRLAgent:
         self.target_copies = 0
         self.batch_credit = 0
         self.n_updates = 0
+        # V_target(s') per buffer slot, valid up to buffer.added == values_synced
+        self.next_values = np.zeros(self.params.buffer_size, dtype=np.float32)
+        self.values_synced = 0
+        self.values_stale = True  # the target changed: every cached value must be recomputed
         self._greedy = self.policy(config.name)
 
     # ------------------------------------------------------------------ imitation learning
@@ -185,6 +193,7 @@ class ValueRLAgent:
             self.net, demos, p.il_epochs, p.il_lr, p.batch_size, self.generator, p.momentum, log
         )
         self.target.load_state_dict(self.net.state_dict())
+        self.values_stale = True
         states, after = demos.states, demos.next_states
         self.buffer.add_batch(
             *states,
@@ -227,12 +236,13 @@ class ValueRLAgent:
 
     def update(self) -> dict[str, float] | None:
         stats = None
+        if self.batch_credit > 0:
+            self._refresh_next_values()
         while self.batch_credit > 0:
-            batch = self.buffer.sample(self.params.batch_size, self.device)
-            with torch.no_grad():
-                next_value, _ = self.target(
-                    batch["next_robot"], batch["next_humans"], batch["next_mask"]
-                )
+            index = self.buffer.sample_index(self.params.batch_size)
+            batch = self.buffer.gather(index, ("robot", "humans", "mask", "reward", "done"))
+            batch = {k: v.to(self.device) for k, v in batch.items()}
+            next_value = torch.from_numpy(self.next_values[index]).to(self.device)
             target = batch["reward"] + self.gamma_step * (1.0 - batch["done"]) * next_value
             value, _ = self.net(batch["robot"], batch["humans"], batch["mask"])
             loss = F.mse_loss(value, target)
@@ -252,6 +262,24 @@ class ValueRLAgent:
         if copies > self.target_copies:
             self.target.load_state_dict(self.net.state_dict())
             self.target_copies = copies
+            self.values_stale = True
+
+    @torch.no_grad()
+    def _refresh_next_values(self, chunk: int = 4096) -> None:
+        """Compute ``V_target(s')`` of the slots whose cached value is out of date: all of them
+        after a target copy, else those added since the last refresh."""
+        buffer = self.buffer
+        if self.values_stale:
+            slots = np.arange(len(buffer))
+        else:
+            slots = buffer.recent_slots(buffer.added - self.values_synced)
+        for start in range(0, len(slots), chunk):
+            part = slots[start : start + chunk]
+            after = buffer.gather(part, ("next_robot", "next_humans", "next_mask"), self.device)
+            values, _ = self.target(after["next_robot"], after["next_humans"], after["next_mask"])
+            self.next_values[part] = values.cpu().numpy()
+        self.values_synced = buffer.added
+        self.values_stale = False
 
     # ------------------------------------------------------------------ policy, files, state
     def policy(self, name: str) -> ValuePolicy:
@@ -281,7 +309,10 @@ class ValueRLAgent:
                 "target_copies": self.target_copies,
                 "batch_credit": self.batch_credit,
                 "n_updates": self.n_updates,
+                "values_synced": self.values_synced,
+                "values_stale": self.values_stale,
             },
+            "next_values": torch.from_numpy(self.next_values.copy()),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -296,6 +327,12 @@ class ValueRLAgent:
         self.target_copies = int(counters["target_copies"])
         self.batch_credit = int(counters["batch_credit"])
         self.n_updates = int(counters["n_updates"])
+        if "next_values" in state:
+            self.next_values[:] = state["next_values"].numpy()
+            self.values_synced = int(counters["values_synced"])
+            self.values_stale = bool(counters["values_stale"])
+        else:  # a checkpoint from before the cache: recompute every value
+            self.values_stale = True
 
 
 def load_value_rl_payload(payload: dict[str, Any], path: Path) -> tuple[ValuePolicy, WorldConfig]:
