@@ -210,12 +210,21 @@ def cmd_report(args: argparse.Namespace) -> int:
     from crowdplan.analysis.report import fill_markdown, report
 
     if args.out:
-        if args.folders or args.fill:
-            raise ValueError("--out makes the report from --results: give no folders or --fill")
+        if args.folders or args.fill or args.paper:
+            raise ValueError(
+                "--out makes the report from --results: give no folders, --fill or --paper"
+            )
         from crowdplan.analysis.html_report import build_report
 
         page = build_report(args.out, args.results)
         print(f"wrote {page} and {page.parent / 'tables.md'}")
+        return 0
+    if args.paper:
+        if args.fill:
+            raise ValueError("--paper prints the tables of the METHOD=DIR given: no --fill")
+        from crowdplan.analysis.paper_tables import paper_report
+
+        print(paper_report(args.folders), end="")
         return 0
     if args.fill:
         if args.folders:
@@ -366,7 +375,18 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "report", help="HTML report (--out) or markdown tables (--fill) from result and run folders"
     )
-    p.add_argument("folders", nargs="*", help="folders searched for summary.json and runs")
+    p.add_argument(
+        "folders",
+        nargs="*",
+        help="folders searched for summary.json and runs; with --paper: METHOD=DIR words",
+    )
+    p.add_argument(
+        "--paper",
+        action="store_true",
+        help="the paper's tables II, VI, VII, VIII and IX with its values beside ours, from "
+        "METHOD=DIR words (a method named again: one more seed; METHOD?=DIR: a run that may not "
+        "be trained yet); a '<!-- crowdplan report --paper ... -->' block of --fill holds them",
+    )
     p.add_argument(
         "--fill",
         metavar="FILE.md",

@@ -8,7 +8,9 @@ their training time and last validation.
 ``<!-- crowdplan report DIR [DIR ...] -->`` and ``<!-- end report -->`` from those folders, so that
 the tables of docs/results.md are always the output of the command written above them. A block
 ``<!-- crowdplan report --transfer DIR -->`` holds the planner x test-world table of a folder
-written by ``python -m crowdplan.analysis.test_worlds`` and its paired comparisons.
+written by ``python -m crowdplan.analysis.test_worlds`` and its paired comparisons. A block
+``<!-- crowdplan report --paper METHOD=DIR ... -->`` holds the paper's comparison tables
+(:mod:`crowdplan.analysis.paper_tables`).
 """
 
 from __future__ import annotations
@@ -90,13 +92,18 @@ TRAINING_HEADER = [
 ]
 
 
+def read_run(run: Path) -> tuple[dict, list[dict[str, str]]]:
+    """A training run folder's ``meta.json`` and the rows of its ``validation.csv``."""
+    meta = json.loads((run / "meta.json").read_text())
+    with open(run / "validation.csv") as f:
+        return meta, list(csv.DictReader(f))
+
+
 def training_rows(run_dirs: list[Path]) -> list[list[str]]:
     """One row of :data:`TRAINING_HEADER` per run folder."""
     rows = []
     for run in run_dirs:
-        meta = json.loads((run / "meta.json").read_text())
-        with open(run / "validation.csv") as f:
-            validations = list(csv.DictReader(f))
+        meta, validations = read_run(run)
         last = validations[-1] if validations else {}
         best = max((float(r["mean_reward"]) for r in validations), default=float("nan"))
         rows.append(
@@ -160,6 +167,10 @@ def fill_markdown(path: str | Path) -> int:
             if len(args) != 2 or not Path(args[1]).is_dir():
                 raise ValueError(f"{path}: a --transfer block names one existing folder: {args}")
             body = "\n".join(t.markdown() for t in transfer_tables(Path(args[1])))
+        elif args[:1] == ["--paper"]:
+            from crowdplan.analysis.paper_tables import paper_report
+
+            body = paper_report(args[1:])
         else:
             body = report(args)
         return f"{match['head']}\n{body}\n{match['end']}"
