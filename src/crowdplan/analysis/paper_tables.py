@@ -72,6 +72,7 @@ class Run:
         return sum(last) / len(last) if last else None
 
     def value(self, key: str, scenario: str = "circle") -> float | None:
+        """A metric of the circle (or ``scenario="square"``) test; None when not measured."""
         summary = self.circle if scenario == "circle" else self.square
         return ((summary or {}).get(key) or {}).get("value")
 
