@@ -253,17 +253,20 @@ def window_table(trace: RunTraces, first: int, last: int) -> str:
     lines = [
         f"{trace.name}, episodes {first}-{last}:",
         "",
-        "| episode | validation success | training success (100) | alpha | entropy | qf_mean | "
-        "qf_loss |",
-        "|---|---|---|---|---|---|---|",
+        "| episode | validation success | validation timeouts | training success (100) | alpha | "
+        "entropy | qf_mean | qf_loss |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     previous = ep[rows[0] - 1] if len(rows) and rows[0] > 0 else -math.inf
     for i in rows:
         hit = np.flatnonzero((val_ep > previous) & (val_ep <= ep[i]))
-        val = f"{trace.validation['success_rate'][hit[-1]]:.2f}" if len(hit) else ""
+        val = timeouts = ""
+        if len(hit):
+            val = f"{trace.validation['success_rate'][hit[-1]]:.2f}"
+            timeouts = f"{trace.validation['timeout_rate'][hit[-1]]:.2f}"
         u = trace.updates
         lines.append(
-            f"| {int(ep[i])} | {val} | {trace.train_success(ep[i : i + 1])[0]:.2f} | "
+            f"| {int(ep[i])} | {val} | {timeouts} | {trace.train_success(ep[i : i + 1])[0]:.2f} | "
             f"{u['alpha'][i]:.2e} | {u['entropy'][i]:.2f} | {u['qf_mean'][i]:.3f} | "
             f"{u['qf_loss'][i]:.1e} |"
         )
