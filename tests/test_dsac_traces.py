@@ -120,7 +120,7 @@ def test_cli_writes_figures_and_tables(run: Path, tmp_path: Path, capsys):
     assert printed.count("| synthetic-s0 | 2.197 | 1000 | 870 | 300 | 500 | 700, 900 | 2 |") == 2
     # one window per run: 400-800 and 600-1000 overlap and are merged
     assert printed.count("synthetic-s0, episodes 400-1000:") == 2
-    assert "| 700 | 0.10 | 0.90 | 0.50 | 2.00e-03 | 2.20 | 0.400 | 1.0e-03 |" in printed
+    assert "| 700 | 0.10 | 0.90 | 0.50 | 0.00 | 2.00e-03 | 2.20 | 0.400 | 1.0e-03 |" in printed
 
 
 def test_not_a_run_folder(tmp_path: Path):

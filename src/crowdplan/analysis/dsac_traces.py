@@ -30,6 +30,7 @@ REACHED = 0.95  # validation success that counts as learned (issue 12's criterio
 FLOOR = 0.9  # ... which it must never fall below again
 COLLAPSED = 0.5  # validation success below this after REACHED: a collapse
 TRAIN_WINDOW = 100  # training episodes in the sampled policy's success rate
+SHORT_WINDOW = 25  # ... and in its recent success in the collapse windows
 
 
 @dataclass
@@ -73,10 +74,10 @@ class RunTraces:
         cfg = self.config
         return cfg.return_max + alpha * math.log(cfg.n_actions) * cfg.gamma / (1.0 - cfg.gamma)
 
-    def train_success(self, at_episodes: np.ndarray) -> np.ndarray:
-        """Success of the sampled (training) policy over the ``TRAIN_WINDOW`` training episodes
-        up to each of ``at_episodes``."""
-        success = rolling_mean((self.episodes["outcome"] == "goal").astype(float), TRAIN_WINDOW)
+    def train_success(self, at_episodes: np.ndarray, window: int = TRAIN_WINDOW) -> np.ndarray:
+        """Success of the sampled (training) policy over the ``window`` training episodes up to
+        each of ``at_episodes``."""
+        success = rolling_mean((self.episodes["outcome"] == "goal").astype(float), window)
         index = np.clip(np.asarray(at_episodes, dtype=int), 1, len(success)) - 1
         return success[index]
 
@@ -253,9 +254,9 @@ def window_table(trace: RunTraces, first: int, last: int) -> str:
     lines = [
         f"{trace.name}, episodes {first}-{last}:",
         "",
-        "| episode | validation success | validation timeouts | training success (100) | alpha | "
-        "entropy | qf_mean | qf_loss |",
-        "|---|---|---|---|---|---|---|---|",
+        "| episode | validation success | validation timeouts | training success (100) | "
+        f"training success ({SHORT_WINDOW}) | alpha | entropy | qf_mean | qf_loss |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     previous = ep[rows[0] - 1] if len(rows) and rows[0] > 0 else -math.inf
     for i in rows:
@@ -267,6 +268,7 @@ def window_table(trace: RunTraces, first: int, last: int) -> str:
         u = trace.updates
         lines.append(
             f"| {int(ep[i])} | {val} | {timeouts} | {trace.train_success(ep[i : i + 1])[0]:.2f} | "
+            f"{trace.train_success(ep[i : i + 1], SHORT_WINDOW)[0]:.2f} | "
             f"{u['alpha'][i]:.2e} | {u['entropy'][i]:.2f} | {u['qf_mean'][i]:.3f} | "
             f"{u['qf_loss'][i]:.1e} |"
         )
