@@ -123,6 +123,15 @@ def test_cli_writes_figures_and_tables(run: Path, tmp_path: Path, capsys):
     assert "| 700 | 0.10 | 0.90 | 0.50 | 0.00 | 2.00e-03 | 2.20 | 0.400 | 1.0e-03 |" in printed
 
 
+def test_run_before_its_first_validation(run: Path, tmp_path: Path):
+    (run / "validation.csv").unlink()
+    diag = dsac_traces.diagnose(dsac_traces.load_run(run))
+    assert diag.first_reached is None and diag.collapse_onsets == [] and diag.greedy_dips == 0
+    assert diag.q_over_return_max == 750
+    assert dsac_traces.main([str(run), "--out", str(tmp_path / "img")]) == 0
+    assert (tmp_path / "img" / "synthetic-s0.png").is_file()
+
+
 def test_not_a_run_folder(tmp_path: Path):
     with pytest.raises(FileNotFoundError):
         dsac_traces.load_run(tmp_path)

@@ -31,6 +31,7 @@ FLOOR = 0.9  # ... which it must never fall below again
 COLLAPSED = 0.5  # validation success below this after REACHED: a collapse
 TRAIN_WINDOW = 100  # training episodes in the sampled policy's success rate
 SHORT_WINDOW = 25  # ... and in its recent success in the collapse windows
+VALIDATION_COLUMNS = ("episode", "success_rate", "timeout_rate")
 
 
 @dataclass
@@ -83,15 +84,18 @@ class RunTraces:
 
 
 def load_run(folder: str | Path) -> RunTraces:
-    """Read a DSAC run folder; the config's missing keys take DSACConfig's defaults."""
+    """Read a DSAC run folder; the config's missing keys take DSACConfig's defaults. A run still
+    before its first validation has no validation rows."""
     folder = Path(folder)
     config = load_config(folder / "config.yaml", legacy_defaults=True).algo_config
     if not isinstance(config, DSACConfig):
         raise ValueError(f"{folder} is not a DSAC run")
     logs = {name: _read(folder / f"{name}.csv") for name in ("updates", "validation", "episodes")}
-    for name, columns in logs.items():
-        if not columns:
+    for name in ("updates", "episodes"):
+        if not logs[name]:
             raise FileNotFoundError(f"{folder / (name + '.csv')} is missing or empty")
+    if not logs["validation"]:  # a run before its first validation
+        logs["validation"] = {key: np.zeros(0) for key in VALIDATION_COLUMNS}
     return RunTraces(folder, config, **logs)
 
 
