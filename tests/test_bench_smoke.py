@@ -68,3 +68,10 @@ def test_bench_train_resume_from_a_run(tmp_path):
     assert "continued from episode 2" in result.stdout
     row = result.stdout.strip().splitlines()[-1]
     assert row.startswith("| 2 |") and float(row.split("|")[-2]) > 0  # h / 10k episodes
+
+
+def test_bench_value_update_quick():
+    args = ["--network", "cadrl", "--humans", "2", "--updates", "3", "--repeats", "1"]
+    result = _run_bench("bench_value_update.py", *args, "--buffer", "500")
+    assert "| reference: target forward per batch |" in result.stdout
+    assert "x faster |" in result.stdout
