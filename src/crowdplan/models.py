@@ -178,6 +178,23 @@ def load_payload(path: Path) -> dict[str, Any]:
     return payload
 
 
+def require_format(payload: dict[str, Any], path: Path, expected: str, what: str) -> None:
+    """Refuse a model file whose ``format`` is not ``expected`` (``what``: e.g. "a DQN")."""
+    if payload.get("format") != expected:
+        raise ValueError(
+            f"{path} is a {payload.get('format')!r} model file, not {what} model ({expected}); "
+            "load it with crowdplan.models.load_model_policy"
+        )
+
+
+def load_weights(module: torch.nn.Module, state: dict[str, Any], path: Path, what: str) -> None:
+    """``module.load_state_dict(state)``; a mismatch names the file and ``what`` it was for."""
+    try:
+        module.load_state_dict(state)
+    except RuntimeError as error:
+        raise ValueError(f"weights in {path} do not match {what}: {error}") from error
+
+
 def load_model_policy(spec: str) -> tuple[Policy, WorldConfig]:
     """Load a trained model of any algorithm as a greedy policy and the world config it was
     trained in; the file's ``format`` says which algorithm reads it."""
@@ -202,12 +219,7 @@ def load_dsac_payload(payload: dict[str, Any], path: Path) -> tuple[DSACPolicy, 
             f"{N_ACTIONS} (stop + 16 directions x 5 speeds)"
         )
     actor = Actor(make_encoder(encoder), dsac.n_actions, dsac.policy_hidden, detach_encoder=False)
-    try:
-        actor.load_state_dict(payload["actor"])
-    except RuntimeError as error:
-        raise ValueError(
-            f"weights in {path} do not match encoder {encoder.name!r}: {error}"
-        ) from error
+    load_weights(actor, payload["actor"], path, f"encoder {encoder.name!r}")
     name = payload["info"].get("name", f"{encoder.name}-dsac")
     metadata = {"model": str(path), "algo": "dsac", "encoder": encoder.name, **payload["info"]}
     return DSACPolicy(actor, world, name, metadata), world

@@ -35,7 +35,7 @@ from torch import Tensor, nn
 from crowdplan.algos.base import Observation, Transitions
 from crowdplan.algos.dsac_agent import observation_features
 from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
-from crowdplan.models import GreedyPolicy
+from crowdplan.models import GreedyPolicy, load_weights, require_format
 from crowdplan.nets.heads import PolicyHead, ValueHead
 from crowdplan.nets.lstm_rl import LSTMRLEncoder
 from crowdplan.sim.actions import N_ACTIONS
@@ -305,18 +305,11 @@ class A2CAgent:
 
 def load_a2c_payload(payload: dict[str, Any], path: Path) -> tuple[A2CPolicy, WorldConfig]:
     """The greedy policy of an LSTM-A2C model file (format :data:`A2C_MODEL_FORMAT`)."""
-    if payload.get("format") != A2C_MODEL_FORMAT:
-        raise ValueError(
-            f"{path} is a {payload.get('format')!r} model file, not an LSTM-A2C model "
-            f"({A2C_MODEL_FORMAT}); load it with crowdplan.models.load_model_policy"
-        )
+    require_format(payload, path, A2C_MODEL_FORMAT, "an LSTM-A2C")
     params = from_dict(A2CConfig, payload["a2c"], f"{path}: a2c")
     world = WorldConfig.from_dict(payload["world"])
     net = ActorCritic(params)
-    try:
-        net.load_state_dict(payload["network"])
-    except RuntimeError as error:
-        raise ValueError(f"weights in {path} do not match its a2c settings: {error}") from error
+    load_weights(net, payload["network"], path, "its a2c settings")
     name = payload["info"].get("name", "lstm-a2c")
     metadata = {"model": str(path), "algo": "a2c", "encoder": "lstm-rl", **payload["info"]}
     return A2CPolicy(net.eval(), world, name, metadata), world

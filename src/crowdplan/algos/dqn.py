@@ -24,7 +24,7 @@ from crowdplan.algos.base import Observation, Transitions
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.dsac_agent import observation_features
 from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
-from crowdplan.models import GreedyPolicy
+from crowdplan.models import GreedyPolicy, load_weights, require_format
 from crowdplan.nets.encoders import Encoder, EncoderConfig, make_encoder, mlp
 from crowdplan.sim.actions import N_ACTIONS
 
@@ -228,21 +228,12 @@ class DQNAgent:
 
 def load_dqn_payload(payload: dict[str, Any], path: Path) -> tuple[DQNPolicy, WorldConfig]:
     """The greedy policy of a DQN model file (format :data:`DQN_MODEL_FORMAT`)."""
-    if payload.get("format") != DQN_MODEL_FORMAT:
-        raise ValueError(
-            f"{path} is a {payload.get('format')!r} model file, not a DQN model "
-            f"({DQN_MODEL_FORMAT}); load it with crowdplan.models.load_model_policy"
-        )
+    require_format(payload, path, DQN_MODEL_FORMAT, "a DQN")
     encoder = from_dict(EncoderConfig, payload["encoder"], f"{path}: encoder")
     params = from_dict(DQNConfig, payload["dqn"], f"{path}: dqn")
     world = WorldConfig.from_dict(payload["world"])
     q = QNetwork(make_encoder(encoder), params.q_hidden)
-    try:
-        q.load_state_dict(payload["q"])
-    except RuntimeError as error:
-        raise ValueError(
-            f"weights in {path} do not match encoder {encoder.name!r}: {error}"
-        ) from error
+    load_weights(q, payload["q"], path, f"encoder {encoder.name!r}")
     name = payload["info"].get("name", f"{encoder.name}-dqn")
     metadata = {"model": str(path), "algo": "dqn", "encoder": encoder.name, **payload["info"]}
     return DQNPolicy(q.eval(), world, name, metadata), world

@@ -39,6 +39,7 @@ from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.imitation import collect_demonstrations, demonstration_seeds, fit_values
 from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
 from crowdplan.features import Features, robot_centric
+from crowdplan.models import load_weights, require_format
 from crowdplan.nets.value import VALUE_NETWORKS, ValueNetwork, make_value_network
 from crowdplan.policy import PolicyOutput
 from crowdplan.sim.actions import N_ACTIONS
@@ -337,20 +338,11 @@ class ValueRLAgent:
 
 def load_value_rl_payload(payload: dict[str, Any], path: Path) -> tuple[ValuePolicy, WorldConfig]:
     """The greedy lookahead policy of a value_rl model file (format :data:`MODEL_FORMAT`)."""
-    if payload.get("format") != MODEL_FORMAT:
-        raise ValueError(
-            f"{path} is a model of format {payload.get('format')!r}, not a value_rl model "
-            f"({MODEL_FORMAT})"
-        )
+    require_format(payload, path, MODEL_FORMAT, "a value_rl")
     params = from_dict(ValueRLConfig, payload["value_rl"], "value_rl")
     world = WorldConfig.from_dict(payload["world"])
     net = make_value_network(params.network)
-    try:
-        net.load_state_dict(payload["network"])
-    except RuntimeError as error:
-        raise ValueError(
-            f"weights in {path} do not match value network {params.network!r}: {error}"
-        ) from error
+    load_weights(net, payload["network"], path, f"value network {params.network!r}")
     info = payload["info"]
     metadata = {"model": str(path), "algo": "value_rl", **info}
     name = info.get("name", params.network)
