@@ -75,3 +75,11 @@ def test_bench_value_update_quick():
     result = _run_bench("bench_value_update.py", *args, "--buffer", "500")
     assert "| reference: target forward per batch |" in result.stdout
     assert "x faster |" in result.stdout
+
+
+def test_bench_lookahead_bf16_quick():
+    args = ["--model", "cadrl", "--envs", "2", "--cases", "2", "--steps", "2", "--repeats", "1"]
+    result = _run_bench("bench_lookahead_bf16.py", *args)
+    assert "| bfloat16 (autocast) |" in result.stdout
+    agreement = result.stdout.strip().splitlines()[-1].split("|")[1]
+    assert 0.0 <= float(agreement) <= 1.0
