@@ -88,7 +88,7 @@ REFUSED = [
     (["eval", "--model", str(ROOT / "configs" / "lsa_dsac.yaml")], "is a YAML file, not a model"),
     (["eval", "--model", "{tmp}/notes.txt"], "is not a torch archive, not a model file"),
     (["eval", "--model", "{tmp}/empty-run"], "holds no model"),
-    (["eval", "--model", "no-such-model"], "shipped model name (lsa-dsac"),
+    (["eval", "--model", "no-such-model"], "or a shipped model name ("),
     # outputs: checked before the work, never replaced without --force
     (["eval", "--out", "{tmp}/file"], "is a file; give a folder"),
     (["eval", "--out", "{tmp}/file/sub"], "is a file, not a folder"),
