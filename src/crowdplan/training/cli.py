@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -12,6 +13,15 @@ from crowdplan import evaluation
 from crowdplan.io import atomic_write
 from crowdplan.training.config import TrainConfig, config_from_dict, load_config
 from crowdplan.training.loop import Trainer
+
+
+def _with_algo_option(config: TrainConfig, field: str, value: Any, applies_to: str) -> TrainConfig:
+    """``config`` with its algorithm's ``field`` set to ``value`` from a command-line flag;
+    an algorithm without that field is refused with ``applies_to`` and the run's algorithm."""
+    if not hasattr(config.algo_config, field):
+        raise ValueError(f"{applies_to}; this run trains {config.algo!r}")
+    params = dataclasses.replace(config.algo_config, **{field: value})
+    return dataclasses.replace(config, algo_config=params)
 
 
 def _new_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
@@ -23,13 +33,12 @@ def _new_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
     if args.humans is not None:
         config = dataclasses.replace(config, world=config.world.replace(humans=args.humans))
     if args.lookahead is not None:
-        if not hasattr(config.algo_config, "lookahead"):
-            raise ValueError(
-                f"--lookahead applies to the value-network baselines (algo: value_rl); this run "
-                f"trains {config.algo!r}"
-            )
-        params = dataclasses.replace(config.algo_config, lookahead=args.lookahead)
-        config = dataclasses.replace(config, algo_config=params)
+        config = _with_algo_option(
+            config,
+            "lookahead",
+            args.lookahead,
+            "--lookahead applies to the value-network baselines (algo: value_rl)",
+        )
     run_dir = Path(args.out or f"runs/{config.name}-s{config.seed}")
     if (run_dir / "checkpoint.pt").exists():
         raise ValueError(f"{run_dir} already holds a run; use --resume or another --out")
@@ -75,13 +84,12 @@ def train_from_cli(args: argparse.Namespace) -> int:
     overrides = {"episodes": args.episodes, "val_interval": args.val_interval}
     config = dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
     if args.parallel_update is not None:
-        if not hasattr(config.algo_config, "parallel_update"):
-            raise ValueError(
-                f"--[no-]parallel-update applies to DSAC's two-thread update; this run trains "
-                f"{config.algo!r}"
-            )
-        params = dataclasses.replace(config.algo_config, parallel_update=args.parallel_update)
-        config = dataclasses.replace(config, algo_config=params)
+        config = _with_algo_option(
+            config,
+            "parallel_update",
+            args.parallel_update,
+            "--[no-]parallel-update applies to DSAC's two-thread update",
+        )
     config = config_from_dict(config.to_dict())  # the same checks as a YAML file gets
     trainer = Trainer(config, run_dir, progress=not args.no_progress, quiet=args.quiet)
     if args.resume:
