@@ -45,14 +45,16 @@ publish: setup
 	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 $(EVAL_ARGS) --out results/train/$(notdir $(RUN))/test --force
 	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --scenario square_crossing $(EVAL_ARGS) --out results/train/$(notdir $(RUN))/test-square --force
 
-# Make a published run's best-validation model the shipped model NAME (default lsa-dsac):
-#   make ship RUN=results/train/<run> [NAME=lstm-a2c]
+# Make a published run's best-validation model the shipped model NAME (default lsa-dsac), with
+# a safety shield of SHIELD seconds if given (docs/generalization.md):
+#   make ship RUN=results/train/<run> [NAME=lstm-a2c] [SHIELD=2.5]
 NAME ?= lsa-dsac
 ship:
-	@test -f "$(RUN)/best_model.pt" || (echo "usage: make ship RUN=results/train/<run> [NAME=<model>]"; exit 2)
+	@test -f "$(RUN)/best_model.pt" || (echo "usage: make ship RUN=results/train/<run> [NAME=<model>] [SHIELD=<seconds>]"; exit 2)
 	mkdir -p models/$(NAME)
 	cp $(RUN)/best_model.pt models/$(NAME)/model.pt
 	cp $(RUN)/config.yaml models/$(NAME)/config.yaml
+	$(if $(SHIELD),$(PY) -m crowdplan.planner_options models/$(NAME)/model.pt --shield $(SHIELD))
 
 # Regenerate every table of docs/results.md from the committed result folders.
 results-doc: setup
@@ -72,7 +74,7 @@ records: setup
 		--scenario square_crossing --out results/records/square/$$(basename $${p#*=}) > /dev/null || exit 1; done
 
 # Every shipped planner in every generalisation test world (docs/generalization.md).
-PLANNERS := lsa-dsac lsa-dsac-paper lsa-dsac-paper-goal orca straight
+PLANNERS := lsa-dsac lsa-dsac@shield=0 lsa-dsac-paper lsa-dsac-paper-goal orca straight
 generalization: setup
 	$(PY) -m crowdplan.analysis.test_worlds --out results/generalization $(PLANNERS)
 	$(BIN)/crowdplan report --fill docs/generalization.md

@@ -63,6 +63,15 @@ def _add_policy_args(parser: argparse.ArgumentParser) -> None:
         help="trained model: a model file (model.pt, best_model.pt, final_model.pt), a run "
         "folder (its best_model.pt) or a shipped model name, e.g. lsa-dsac (default: none)",
     )
+    parser.add_argument(
+        "--shield",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="safety shield for --model policies that rank the 81 actions: drop actions predicted "
+        "to hit a human within SECONDS (constant velocities; docs/generalization.md); 0: off "
+        "(default: the model's own, e.g. 2.5 s for lsa-dsac, none for the paper's models)",
+    )
 
 
 def _add_output_args(parser: argparse.ArgumentParser, what: str) -> None:
@@ -130,7 +139,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.out:
         files = RESULT_FILES + (("records.npz",) if args.record else ())
         check_output_folder(args.out, files, args.force)
-    policy, base = load_policy(args.policy, args.model)
+    policy, base = load_policy(args.policy, args.model, args.shield)
     config = _world_config(args, policy, base)
 
     records: list = []
@@ -189,7 +198,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise ValueError(f"--case must be >= 0, got {args.case}")
     seed = evaluation.SPLITS[args.split].seed(args.case)
     check_output_file(args.out, args.force, RENDER_SUFFIXES)
-    policy, base = load_policy(args.policy, args.model)
+    policy, base = load_policy(args.policy, args.model, args.shield)
     config = _world_config(args, policy, base)
     (record,) = evaluation.run_episodes(policy, config, [seed], record_traces=True)
     title = f"{policy.name}, {args.split} case {args.case}: {record.outcome} at {record.time:.2f} s"

@@ -24,6 +24,7 @@ from crowdplan.features import robot_centric
 from crowdplan.nets.encoders import EncoderConfig, make_encoder
 from crowdplan.policy import Policy, PolicyOutput
 from crowdplan.sim.actions import N_ACTIONS
+from crowdplan.sim.shield import Shield
 
 MODEL_FORMAT = "crowdplan-dsac-policy/1"
 MODEL_FILES = ("model.pt", "best_model.pt", "final_model.pt")
@@ -50,10 +51,12 @@ class GreedyPolicy:
 
     ``network(robot, humans, mask)`` returns ``(per-action scores (B, A), second output)``; the
     second output is the per-human attention when ``attention_output`` (DSAC actors, Q
-    networks), something else otherwise (an A2C critic's value).
+    networks), something else otherwise (an A2C critic's value). With a ``shield``
+    (:class:`~crowdplan.sim.shield.Shield`) the argmax is taken over the actions it lets through.
     """
 
     attention_output = True
+    shield: Shield | None = None
 
     def __init__(
         self, network: torch.nn.Module, world: WorldConfig, name: str, metadata: dict | None = None
@@ -71,7 +74,18 @@ class GreedyPolicy:
         device = next(self.network.parameters()).device
         scores, second = self.network(*(torch.from_numpy(x).to(device) for x in feats))
         attention = second.cpu().numpy() if self.attention_output and second is not None else None
-        return PolicyOutput(scores.argmax(dim=1).cpu().numpy(), attention)
+        if self.shield is None:
+            return PolicyOutput(scores.argmax(dim=1).cpu().numpy(), attention)
+        w = self.world
+        clearance = self.shield.clearance(
+            robot, humans, mask, w.kinematics, w.action_frame, w.speed_sampling
+        )
+        return PolicyOutput(self.shield.choose(scores.cpu().numpy(), clearance), attention)
+
+    def set_shield(self, shield: Shield | None) -> None:
+        """Use ``shield`` (None: none) from the next decision on; recorded in the metadata."""
+        self.shield = shield
+        self.metadata["shield_horizon"] = shield.horizon if shield else None
 
 
 class DSACPolicy(GreedyPolicy):
@@ -195,14 +209,35 @@ def load_weights(module: torch.nn.Module, state: dict[str, Any], path: Path, wha
         raise ValueError(f"weights in {path} do not match {what}: {error}") from error
 
 
-def load_model_policy(spec: str) -> tuple[Policy, WorldConfig]:
+def load_model_policy(spec: str, shield: float | None = None) -> tuple[Policy, WorldConfig]:
     """Load a trained model of any algorithm as a greedy policy and the world config it was
-    trained in; the file's ``format`` says which algorithm reads it."""
+    trained in; the file's ``format`` says which algorithm reads it.
+
+    ``shield``: horizon in seconds of the safety shield (:mod:`crowdplan.sim.shield`), 0 for
+    none; None takes the model file's own (``planner.shield_horizon``, none if absent).
+    """
     from crowdplan.algos.registry import algorithm_of_model
 
     path = resolve_model_path(spec)
     payload = load_payload(path)
-    return algorithm_of_model(payload["format"], path).load_policy(payload, path)
+    policy, world = algorithm_of_model(payload["format"], path).load_policy(payload, path)
+    horizon = shield if shield is not None else model_shield_horizon(payload)
+    if horizon:
+        if not isinstance(policy, GreedyPolicy):
+            raise ValueError(
+                f"{path} is a {payload['format']!r} model; the safety shield filters the scores "
+                "of policies that rank the 81 actions (DSAC, DQN, A2C): drop --shield"
+            )
+        policy.set_shield(Shield(horizon))
+    elif isinstance(policy, GreedyPolicy):
+        policy.set_shield(None)
+    return policy, world
+
+
+def model_shield_horizon(payload: dict[str, Any]) -> float | None:
+    """The shield horizon a model file asks for (``planner.shield_horizon``), None if none."""
+    horizon = payload.get("planner", {}).get("shield_horizon")
+    return None if horizon is None else float(horizon)
 
 
 def load_dsac_payload(payload: dict[str, Any], path: Path) -> tuple[DSACPolicy, WorldConfig]:

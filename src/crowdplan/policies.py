@@ -38,12 +38,20 @@ def parse_options(items: list[str], own_flags: tuple[str, ...] = ()) -> dict:
     return options
 
 
-def load_policy(policy: str | None, model: str | None) -> tuple[Policy, WorldConfig]:
-    """A policy plus the world config it expects (a trained model brings its own)."""
+def load_policy(
+    policy: str | None, model: str | None, shield: float | None = None
+) -> tuple[Policy, WorldConfig]:
+    """A policy plus the world config it expects (a trained model brings its own).
+
+    ``shield``: a trained model's safety-shield horizon in seconds (0: off, None: the model's
+    own; see :func:`crowdplan.models.load_model_policy`); built-in planners take none.
+    """
     if model is not None:
         from crowdplan.models import load_model_policy
 
-        return load_model_policy(model)
+        return load_model_policy(model, shield)
+    if shield:
+        raise ValueError("--shield filters a trained model's action scores: use it with --model")
     name = policy or "orca"
     if name == "orca":
         from crowdplan.algos.orca_planner import OrcaPlanner

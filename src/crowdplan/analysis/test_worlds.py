@@ -6,9 +6,11 @@ in every world writes one result folder per world:
     python -m crowdplan.analysis.test_worlds --out results/generalization lsa-dsac orca straight
 
 Names are shipped models, run folders or model files; ``orca`` and ``straight`` are the built-in
-planners. Every world starts from the default (the paper's) world, whatever world a model was
-trained in (``crowdplan eval --default-world``). Replayed pedestrians come from the held-out
-ETH/UCY scenes only (zara1, zara2, univ).
+planners. ``NAME@shield=S`` runs a model with the safety shield's horizon set to S seconds (0:
+off) instead of the model's own (``crowdplan eval --shield``); its folder keeps that name. Every
+world starts from the default (the paper's) world, whatever world a model was trained in
+(``crowdplan eval --default-world``). Replayed pedestrians come from the held-out ETH/UCY scenes
+only (zara1, zara2, univ).
 """
 
 from __future__ import annotations
@@ -44,7 +46,14 @@ TEST_WORLDS: dict[str, tuple[str, list[str]]] = {
 
 def eval_arguments(planner: str, world: str, out: Path, episodes: int) -> list[str]:
     """``crowdplan eval`` arguments of one planner in one test world."""
-    source = ["--policy", planner] if planner in BUILTIN_POLICIES else ["--model", planner]
+    name, _, option = planner.partition("@")
+    if option:
+        key, _, value = option.partition("=")
+        if key != "shield" or not value:
+            raise ValueError(f"planner {planner!r}: the only option is NAME@shield=SECONDS")
+    source = ["--policy", name] if name in BUILTIN_POLICIES else ["--model", name]
+    if option:
+        source += ["--shield", value]
     _, options = TEST_WORLDS[world]
     return [
         "eval",

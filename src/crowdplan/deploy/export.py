@@ -209,6 +209,12 @@ def export_model(
     if not _dynamic_crowd(onnx_path):
         raise ValueError(f"the export of {model} fixed the number of humans; it is unusable")
     value_network = spec.kind == VALUE_KIND
+    shield = getattr(policy, "shield", None)
+    if shield is not None and getattr(world, "action_frame", "world") != "goal":
+        raise ValueError(
+            f"{model} asks for a safety shield over world-frame actions, which the runtime does "
+            "not turn for other goal directions; export a goal-frame model"
+        )
     manifest = Manifest(
         kind=spec.kind,
         outputs=spec.outputs,
@@ -234,6 +240,7 @@ def export_model(
         network=spec.network,
         lookahead=spec.lookahead,
         gamma_step=spec.gamma_step,
+        shield_horizon=None if shield is None else shield.horizon,
     )
     write_manifest(out, manifest)
     return manifest, onnx_path

@@ -64,6 +64,8 @@ class Manifest:
         lookahead: value networks only: how the humans' next states are predicted in the
             one-step lookahead (only "constant_velocity" deploys).
         gamma_step: value networks only: the lookahead's discount per step.
+        shield_horizon: the safety shield's horizon in seconds (:mod:`crowdplan.sim.shield`)
+            that the runtime applies to the network's action scores; None: no shield.
     """
 
     kind: str
@@ -89,6 +91,7 @@ class Manifest:
     network: str = "actor"
     lookahead: str | None = None
     gamma_step: float | None = None
+    shield_horizon: float | None = None
 
     @property
     def has_attention(self) -> bool:
@@ -176,6 +179,13 @@ def load_manifest(export_dir: str | Path) -> tuple[Manifest, Path]:
         )
     if manifest.kind not in KINDS:
         raise ValueError(f"{path}: unknown kind {manifest.kind!r} (one of {', '.join(KINDS)})")
+    if manifest.shield_horizon is not None and (
+        manifest.is_value_network or manifest.action_frame != "goal"
+    ):
+        raise ValueError(
+            f"{path}: a safety shield needs a policy over goal-frame actions (kind "
+            f"{manifest.kind!r}, action frame {manifest.action_frame!r})"
+        )
     if manifest.is_value_network:
         _check_value_fields(manifest, path)
     elif manifest.action_frame == "world" and (

@@ -4,7 +4,9 @@
 observations, through the project's one feature transform (``crowdplan.features``), and turns
 action indices into world-frame velocities through the one action table (``crowdplan.sim.actions``).
 Its greedy action is the argmax of the network's first output (DSAC and A2C logits, DQN Q values)
-or, for a value network, of the one-step lookahead of :mod:`crowdplan.deploy.value_lookahead`.
+or, for a value network, of the one-step lookahead of :mod:`crowdplan.deploy.value_lookahead`;
+where the manifest names a safety shield (:mod:`crowdplan.sim.shield`), over the actions it lets
+through.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from crowdplan.deploy.value_lookahead import ValueLookahead
 from crowdplan.features import Features, robot_centric
 from crowdplan.policy import PolicyOutput
 from crowdplan.sim.actions import action_velocities
+from crowdplan.sim.shield import Shield
 
 
 class OnnxPolicy:
@@ -58,6 +61,8 @@ class OnnxPolicy:
         self.max_humans = m.max_humans
         self.metadata = {"export": str(folder), "source_model": m.source_model, "algo": m.algo}
         self.lookahead = ValueLookahead(m, self.run_features) if m.is_value_network else None
+        self.shield = None if m.shield_horizon is None else Shield(m.shield_horizon)
+        self.metadata["shield_horizon"] = m.shield_horizon
 
     def run_features(self, feats: Features) -> list[np.ndarray]:
         """The network's outputs on robot-centric features (robot (B, 6), humans (B, N, 7),
@@ -100,7 +105,13 @@ class OnnxPolicy:
             current = feats if self.manifest.has_attention else None
             scores, outputs = self.lookahead.evaluate(robot, humans, mask, current)
         attention = outputs[1] if self.manifest.has_attention else None
-        return PolicyOutput(scores.argmax(axis=1), attention)
+        if self.shield is None:
+            return PolicyOutput(scores.argmax(axis=1), attention)
+        m = self.manifest
+        clearance = self.shield.clearance(
+            robot, humans, mask, m.kinematics, m.action_frame, m.speed_sampling
+        )
+        return PolicyOutput(self.shield.choose(scores, clearance), attention)
 
     def attention(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """(E, N) attention scores; ValueError for networks without attention (raw, ...)."""
