@@ -194,6 +194,12 @@ def export_model(
         raise ValueError(f"max_humans must be >= 1, got {max_humans}")
     policy, world = load_model_policy(model)
     spec = export_spec(policy)
+    shield = getattr(policy, "shield", None)
+    if shield is not None and getattr(world, "action_frame", "world") != "goal":
+        raise ValueError(
+            f"{model} asks for a safety shield over world-frame actions, which the runtime does "
+            "not turn for other goal directions; export a goal-frame model"
+        )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     onnx_path = out / ONNX_FILE
@@ -209,12 +215,6 @@ def export_model(
     if not _dynamic_crowd(onnx_path):
         raise ValueError(f"the export of {model} fixed the number of humans; it is unusable")
     value_network = spec.kind == VALUE_KIND
-    shield = getattr(policy, "shield", None)
-    if shield is not None and getattr(world, "action_frame", "world") != "goal":
-        raise ValueError(
-            f"{model} asks for a safety shield over world-frame actions, which the runtime does "
-            "not turn for other goal directions; export a goal-frame model"
-        )
     manifest = Manifest(
         kind=spec.kind,
         outputs=spec.outputs,
