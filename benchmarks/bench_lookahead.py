@@ -13,6 +13,10 @@ the reward is computed in a Python loop over the humans, the joint state is rota
 network is called on that one state (batch 1). Both sides use the same SARL weights, the same
 reward definitions and the same features; their action values are checked to agree (printed).
 
+A second table puts the batched decision beside its arithmetic floor: the SARL forward pass's
+floating-point operations per decision (counted by ``torch.utils.flop_counter``) divided by this
+core's dense float32 matmul rate, measured in the same run on one large matmul.
+
 Times are this process's CPU time (``time.process_time``), steadier than wall-clock time when
 other work shares the machine; one torch thread. Output: stdout only.
 """
@@ -108,6 +112,22 @@ def _time(fn, repeats: int) -> float:
     return (time.process_time() - start) / repeats
 
 
+def matmul_rate(size: int = 1024, repeats: int = 5) -> float:
+    """FLOP/s of one float32 (size x size) @ (size x size) matmul on one thread."""
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    seconds = _time(lambda: a @ b, repeats)
+    return 2 * size**3 / seconds
+
+
+def forward_flops(net, config, gamma, robot, humans, mask) -> int:
+    """Floating-point operations of the value network's forward pass in one batched decision."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    with FlopCounterMode(display=False) as counter:
+        batched(net, config, gamma, robot, humans, mask)
+    return counter.get_total_flops()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--humans", type=int, nargs="+", default=[5, 10])
@@ -126,6 +146,7 @@ def main() -> None:
     torch.set_num_threads(1)
     torch.manual_seed(0)
     net = make_value_network("sarl").eval()
+    floors = []
     print(f"torch {torch.__version__}, 1 thread; SARL, 81 actions, CPU time per decision")
     print()
     print("| N | E | crowdplan ms/decision | reference ms/decision | ratio | max abs diff |")
@@ -144,6 +165,19 @@ def main() -> None:
                 f"| {n} | {envs} | {fast * 1e3:.3f} | {slow * 1e3:.2f} | {slow / fast:.0f}x "
                 f"| {diff.max():.1e} |"
             )
+            floors.append((n, envs, fast, forward_flops(net, config, gamma, *obs) / envs))
+    rate = matmul_rate(256 if args.quick else 1024)
+    print()
+    print(f"arithmetic floor at this core's float32 matmul rate ({rate / 1e9:.1f} GFLOP/s):")
+    print()
+    print("| N | E | forward MFLOP/decision | floor ms/decision | crowdplan ms/decision | ratio |")
+    print("|---|---|---|---|---|---|")
+    for n, envs, fast, flops in floors:
+        floor = flops / rate
+        print(
+            f"| {n} | {envs} | {flops / 1e6:.1f} | {floor * 1e3:.3f} | {fast * 1e3:.3f} "
+            f"| {fast / floor:.1f}x the floor |"
+        )
 
 
 if __name__ == "__main__":
