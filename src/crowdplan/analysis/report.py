@@ -89,7 +89,30 @@ TRAINING_HEADER = [
     "last val success",
     "last val reward",
     "best val reward",
+    "min to val success >= 0.99",
 ]
+FIRST_SUCCESS = 0.99  # the validation success whose first arrival the training table times
+
+
+def minutes_to_success(run: Path, meta: dict, validations: list[dict[str, str]]) -> float | None:
+    """Wall-clock minutes from the start of a run (pretraining included) to the end of the
+    episode of its first validation with success >= :data:`FIRST_SUCCESS`; None if it never got
+    there (or the run folder has no ``episodes.csv``)."""
+    first = next(
+        (int(r["episode"]) for r in validations if float(r["success_rate"]) >= FIRST_SUCCESS),
+        None,
+    )
+    episodes = run / "episodes.csv"
+    if first is None or not episodes.is_file():
+        return None
+    with open(episodes) as f:
+        seconds = next(
+            (float(r["train_seconds"]) for r in csv.DictReader(f) if int(r["episode"]) >= first),
+            None,
+        )
+    if seconds is None:
+        return None
+    return (float(meta.get("pretrain_seconds") or 0.0) + seconds) / 60.0
 
 
 def read_run(run: Path) -> tuple[dict, list[dict[str, str]]]:
@@ -106,6 +129,7 @@ def training_rows(run_dirs: list[Path]) -> list[list[str]]:
         meta, validations = read_run(run)
         last = validations[-1] if validations else {}
         best = max((float(r["mean_reward"]) for r in validations), default=float("nan"))
+        minutes = minutes_to_success(run, meta, validations)
         rows.append(
             [
                 str(run),
@@ -116,6 +140,7 @@ def training_rows(run_dirs: list[Path]) -> list[list[str]]:
                 f"{float(last.get('success_rate', 'nan')):.3f}",
                 f"{float(last.get('mean_reward', 'nan')):.3f}",
                 f"{best:.3f}",
+                "never" if minutes is None else f"{minutes:.0f}",
             ]
         )
     return rows
