@@ -76,11 +76,11 @@ class GreedyPolicy:
         attention = second.cpu().numpy() if self.attention_output and second is not None else None
         if self.shield is None:
             return PolicyOutput(scores.argmax(dim=1).cpu().numpy(), attention)
-        w = self.world
-        clearance = self.shield.clearance(
-            robot, humans, mask, w.kinematics, w.action_frame, w.speed_sampling
+        w, scores = self.world, scores.cpu().numpy()
+        actions = self.shield.act(
+            scores, robot, humans, mask, w.kinematics, w.action_frame, w.speed_sampling
         )
-        return PolicyOutput(self.shield.choose(scores.cpu().numpy(), clearance), attention)
+        return PolicyOutput(actions, attention)
 
     def set_shield(self, shield: Shield | None) -> None:
         """Use ``shield`` (None: none) from the next decision on; recorded in the metadata."""

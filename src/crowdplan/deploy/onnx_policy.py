@@ -108,10 +108,10 @@ class OnnxPolicy:
         if self.shield is None:
             return PolicyOutput(scores.argmax(axis=1), attention)
         m = self.manifest
-        clearance = self.shield.clearance(
-            robot, humans, mask, m.kinematics, m.action_frame, m.speed_sampling
+        actions = self.shield.act(
+            scores, robot, humans, mask, m.kinematics, m.action_frame, m.speed_sampling
         )
-        return PolicyOutput(self.shield.choose(scores, clearance), attention)
+        return PolicyOutput(actions, attention)
 
     def attention(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """(E, N) attention scores; ValueError for networks without attention (raw, ...)."""

@@ -76,6 +76,21 @@ class Shield:
         gap = gap - robot[:, None, None, 4]
         return np.where(mask[:, None], gap, np.inf).min(axis=2, initial=np.inf)
 
+    def act(
+        self,
+        scores: np.ndarray,
+        robot: np.ndarray,
+        humans: np.ndarray,
+        mask: np.ndarray,
+        kinematics: str,
+        action_frame: str,
+        speed_sampling: str,
+    ) -> np.ndarray:
+        """(E,) the shielded greedy actions for action ``scores`` (E, 81) of raw observations:
+        :meth:`choose` over :meth:`clearance` (same arguments)."""
+        clearance = self.clearance(robot, humans, mask, kinematics, action_frame, speed_sampling)
+        return self.choose(scores, clearance)
+
     def choose(self, scores: np.ndarray, clearance: np.ndarray) -> np.ndarray:
         """(E,) the highest-scoring safe action of each environment, or the action with the
         largest clearance where none is safe. ``scores``: (E, 81), higher is better."""
