@@ -3,6 +3,8 @@ the command line, the test worlds and ONNX exports carry it."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -148,3 +150,20 @@ def test_world_frame_export_with_a_shield_is_refused(tmp_path):
     torch.save(with_shield(payload, 2.5), tmp_path / "model.pt")
     with pytest.raises(ValueError, match="world-frame actions"):
         export_model(str(tmp_path / "model.pt"), tmp_path / "export")
+
+
+def test_shield_tuning_and_planner_options_entry_points(tmp_path, capsys):
+    from crowdplan import planner_options
+    from crowdplan.analysis import shield_tuning
+
+    out = tmp_path / "tuning.json"
+    argv = ["lsa-dsac", "--horizons", "0", "2.5", "--worlds", "circle", "--cases", "4"]
+    assert shield_tuning.main([*argv, "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "seeds 100..103" in printed and "| circle |" in printed
+    assert set(json.loads(out.read_text())["worlds"]["circle"]) == {"0.0", "2.5"}
+
+    model = tmp_path / "model.pt"
+    model.write_bytes(resolve_model_path("lsa-dsac-paper-goal").read_bytes())
+    assert planner_options.main([str(model), "--shield", "1.5"]) == 0
+    assert load_model_policy(str(model))[0].shield == Shield(1.5)

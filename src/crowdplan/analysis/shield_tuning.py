@@ -33,8 +33,11 @@ TUNING_WORLDS: dict[str, dict] = {
 }
 
 
-def tune(model: str, horizons: list[float], worlds: list[str]) -> dict[str, dict[str, dict]]:
-    """``{world: {horizon: rates}}`` of ``model`` with each shield horizon (0: none)."""
+def tune(
+    model: str, horizons: list[float], worlds: list[str], cases: int = TUNING.cases
+) -> dict[str, dict[str, dict]]:
+    """``{world: {horizon: rates}}`` of ``model`` with each shield horizon (0: none), over the
+    first ``cases`` tuning seeds."""
     table: dict[str, dict[str, dict]] = {}
     for world in worlds:
         table[world] = {}
@@ -43,7 +46,7 @@ def tune(model: str, horizons: list[float], worlds: list[str]) -> dict[str, dict
             own = ("kinematics", "action_frame", "speed_sampling")
             config = WorldConfig(**{key: getattr(trained, key) for key in own})
             config = config.replace(**TUNING_WORLDS[world])
-            summary = summarize(run_episodes(policy, config, TUNING.seeds()), config)
+            summary = summarize(run_episodes(policy, config, TUNING.seeds(cases)), config)
             table[world][str(horizon)] = {
                 key: summary[key]["value"]
                 for key in ("success_rate", "collision_rate", "timeout_rate", "time_to_goal")
@@ -69,13 +72,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("model", help="shipped model name, run folder or model file")
     parser.add_argument("--horizons", type=float, nargs="+", default=[0, 1, 1.5, 2, 2.5, 3])
     parser.add_argument("--worlds", nargs="+", default=list(TUNING_WORLDS), choices=TUNING_WORLDS)
+    parser.add_argument("--cases", type=int, default=TUNING.cases, help="seeds 100.. (900)")
     parser.add_argument("--out", type=Path, help="JSON file to write (default: print only)")
     args = parser.parse_args(argv)
-    table = tune(args.model, args.horizons, args.worlds)
+    table = tune(args.model, args.horizons, args.worlds, args.cases)
+    last = TUNING.seed_base + args.cases - 1
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        write_json(args.out, {"model": args.model, "seeds": [100, 999], "worlds": table})
-    print(f"# {args.model}: success (collision) rate over seeds 100..999, by shield horizon")
+        write_json(args.out, {"model": args.model, "seeds": [100, last], "worlds": table})
+    print(f"# {args.model}: success (collision) rate over seeds 100..{last}, by shield horizon")
     print(markdown(table))
     return 0
 
