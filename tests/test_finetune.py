@@ -88,3 +88,35 @@ def test_init_model_loads_the_policy_and_checks_the_action_frame(tmp_path):
     config = config_from_dict({**world_frame, "dsac": {"init_model": "lsa-dsac-paper-goal"}})
     with pytest.raises(ValueError, match="acts in the goal frame, the run in the world frame"):
         Trainer(config, tmp_path / "other", progress=False)
+
+
+def test_init_networks_continues_a_run_from_its_checkpoint_or_networks_file(tmp_path):
+    from crowdplan.algos.dsac_agent import NETWORK_KEYS, save_networks
+
+    tiny = {**TINY, "dsac": {"random_steps": 2, "learning_starts": 2}}
+    first = Trainer(config_from_dict(tiny), tmp_path / "first", progress=False)
+    first.run()
+    saved = torch.load(tmp_path / "first" / "checkpoint.pt", weights_only=False)
+    expected = saved["agent"]["dsac"]
+    save_networks(tmp_path / "first" / "checkpoint.pt", tmp_path / "networks.pt")
+    for source in (tmp_path / "first", tmp_path / "networks.pt"):
+        config = config_from_dict({**TINY, "dsac": {"init_networks": str(source)}})
+        core = Trainer(config, tmp_path / f"from-{source.name}", progress=False).agent.core
+        for key in NETWORK_KEYS[:3]:
+            for name, value in getattr(core, key).state_dict().items():
+                assert torch.equal(value, expected[key][name])
+        assert torch.equal(core.log_alpha.detach(), expected["log_alpha"])
+
+
+def test_init_networks_refuses_other_encoders_and_init_model_together(tmp_path):
+    tiny = {**TINY, "dsac": {"random_steps": 2, "learning_starts": 2}}
+    Trainer(config_from_dict(tiny), tmp_path / "first", progress=False).run()
+    other = {**TINY, "encoder": {"name": "rg"}, "dsac": {"init_networks": str(tmp_path / "first")}}
+    with pytest.raises(ValueError, match="has encoder"):
+        Trainer(config_from_dict(other), tmp_path / "other", progress=False)
+    both = {"init_networks": str(tmp_path / "first"), "init_model": "lsa-dsac-paper-goal"}
+    with pytest.raises(ValueError, match="give one"):
+        config_from_dict({**TINY, "dsac": both})
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        missing = {**TINY, "dsac": {"init_networks": str(tmp_path / "nothing.pt")}}
+        Trainer(config_from_dict(missing), tmp_path / "missing", progress=False)

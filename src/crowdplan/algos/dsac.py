@@ -60,6 +60,10 @@ class DSACConfig:
         buffer_size: replay capacity in transitions.
         init_model: a DSAC model file (or shipped model name) whose policy initialises the
             actor (fine-tuning); it must have the same encoder and action frame as the run.
+        init_networks: a DSAC training checkpoint (``checkpoint.pt``) or a networks file
+            written from one (:func:`crowdplan.algos.dsac_agent.save_networks`) whose actor,
+            critic, target critic and temperature start the run (continuing a run in another
+            world); same encoder and action frame as the run; not together with ``init_model``.
         actor_warmup_updates: updates during which only the critic learns (policy and
             temperature frozen), so that a fresh critic does not undo an initialised policy.
 
@@ -99,6 +103,7 @@ class DSACConfig:
     learning_starts: int = spec(1000, low=1)
     buffer_size: int = spec(200_000, low=1)
     init_model: str | None = None
+    init_networks: str | None = None
     actor_warmup_updates: int = spec(0, low=0)
     clip_q_targets: bool = False
     return_min: float = -2.5
@@ -115,6 +120,10 @@ class DSACConfig:
 
     def __post_init__(self) -> None:
         check_fields(self, "dsac")
+        if self.init_model is not None and self.init_networks is not None:
+            raise ValueError(
+                "dsac.init_model and dsac.init_networks both initialise the actor: give one"
+            )
         if self.return_min >= self.return_max:
             raise ValueError(
                 f"dsac.return_min ({self.return_min}) must be below dsac.return_max "
@@ -421,6 +430,15 @@ class DSAC:
             "actor_optimizer": self.actor_optimizer.state_dict(),
             "n_updates": self.n_updates,
         }
+
+    def load_networks(self, networks: dict[str, Any]) -> None:
+        """Start from another run's actor, critic, target critic and log temperature (the
+        optimisers start afresh)."""
+        self.critic.load_state_dict(networks["critic"])
+        self.critic_target.load_state_dict(networks["critic_target"])
+        self.actor.load_state_dict(networks["actor"])
+        with torch.no_grad():
+            self.log_alpha.copy_(networks["log_alpha"])
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore what :meth:`state_dict` returned (same configs)."""

@@ -5,6 +5,7 @@ The maths of an update is in :mod:`crowdplan.algos.dsac`; this module only feeds
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -13,6 +14,7 @@ import torch
 from crowdplan.algos.base import Observation, Transitions
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.dsac import DSAC
+from crowdplan.config import to_dict
 from crowdplan.features import Features, robot_centric
 from crowdplan.models import MODEL_FORMAT, DSACPolicy, model_payload
 
@@ -27,7 +29,6 @@ def observation_features(obs: Observation, unicycle: bool) -> Features:
 
 def initial_actor_state(config: TrainConfig) -> dict[str, torch.Tensor]:
     """The policy weights of ``config.algo_config.init_model``, checked against the run."""
-    from crowdplan.config import to_dict
     from crowdplan.models import load_payload, resolve_model_path
 
     path = resolve_model_path(config.algo_config.init_model)
@@ -48,6 +49,59 @@ def initial_actor_state(config: TrainConfig) -> dict[str, torch.Tensor]:
     return payload["actor"]
 
 
+NETWORK_KEYS = ("actor", "critic", "critic_target", "log_alpha")
+NETWORKS_FORMAT = "crowdplan-dsac-networks/1"
+
+
+def save_networks(checkpoint: Path, out: Path) -> None:
+    """Write the DSAC networks and temperature of a training checkpoint, with the run's config,
+    to ``out`` (a few MB instead of a checkpoint's replay buffer), for ``dsac.init_networks``."""
+    from crowdplan.training.checkpoint import read_checkpoint, torch_save_atomic
+
+    state = read_checkpoint(checkpoint)
+    dsac = state["agent"].get("dsac") if isinstance(state.get("agent"), dict) else None
+    if dsac is None:
+        raise ValueError(f"{checkpoint} is not a DSAC training checkpoint")
+    networks = {key: dsac[key] for key in NETWORK_KEYS}
+    torch_save_atomic(
+        out, {"format": NETWORKS_FORMAT, "config": state["config"], "networks": networks}
+    )
+
+
+def initial_networks(config: TrainConfig) -> dict[str, Any]:
+    """The networks of ``config.algo_config.init_networks``, checked against the run."""
+    from crowdplan.training.checkpoint import read_checkpoint
+
+    path = Path(config.algo_config.init_networks)
+    if path.is_dir():
+        path = path / "checkpoint.pt"
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"dsac.init_networks {path} does not exist: give a run's checkpoint.pt or a file "
+            "written by save_networks"
+        )
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    if isinstance(state, dict) and state.get("format") == NETWORKS_FORMAT:
+        saved, networks = state["config"], state["networks"]
+    else:
+        state = read_checkpoint(path)
+        saved, networks = state["config"], state["agent"].get("dsac")
+        if networks is None:
+            raise ValueError(f"dsac.init_networks {path} is not a DSAC training checkpoint")
+    encoder = saved.get("encoder")
+    if encoder != to_dict(config.encoder):
+        raise ValueError(
+            f"dsac.init_networks {path} has encoder {encoder}, the run {to_dict(config.encoder)}"
+        )
+    frame = saved.get("world", {}).get("action_frame", "world")
+    if frame != config.world.action_frame:
+        raise ValueError(
+            f"dsac.init_networks {path} acts in the {frame} frame, the run in the "
+            f"{config.world.action_frame} frame"
+        )
+    return {key: networks[key] for key in NETWORK_KEYS}
+
+
 class DSACAgent:
     """Off-policy DSAC: uniform random actions for the first ``random_steps`` transitions, then
     samples of the policy; ``updates_per_step`` updates per transition once the buffer holds
@@ -60,6 +114,8 @@ class DSACAgent:
         self.core = DSAC(self.params, config.encoder, seed=config.seed, device=device)
         if self.params.init_model is not None:
             self.core.actor.load_state_dict(initial_actor_state(config))
+        if self.params.init_networks is not None:
+            self.core.load_networks(initial_networks(config))
         self.buffer = ReplayBuffer(
             self.params.buffer_size, config.world.humans, seed=config.seed + 1
         )
