@@ -53,16 +53,23 @@ NETWORK_KEYS = ("actor", "critic", "critic_target", "log_alpha")
 NETWORKS_FORMAT = "crowdplan-dsac-networks/1"
 
 
+def _dsac_networks(state: dict[str, Any], path: Path) -> dict[str, Any]:
+    """The networks and temperature of a loaded checkpoint or networks file."""
+    if state.get("format") == NETWORKS_FORMAT:
+        return state["networks"]
+    dsac = state["agent"].get("dsac") if isinstance(state.get("agent"), dict) else None
+    if dsac is None:
+        raise ValueError(f"{path} is not a DSAC training checkpoint")
+    return {key: dsac[key] for key in NETWORK_KEYS}
+
+
 def save_networks(checkpoint: Path, out: Path) -> None:
     """Write the DSAC networks and temperature of a training checkpoint, with the run's config,
     to ``out`` (a few MB instead of a checkpoint's replay buffer), for ``dsac.init_networks``."""
     from crowdplan.training.checkpoint import read_checkpoint, torch_save_atomic
 
     state = read_checkpoint(checkpoint)
-    dsac = state["agent"].get("dsac") if isinstance(state.get("agent"), dict) else None
-    if dsac is None:
-        raise ValueError(f"{checkpoint} is not a DSAC training checkpoint")
-    networks = {key: dsac[key] for key in NETWORK_KEYS}
+    networks = _dsac_networks(state, checkpoint)
     torch_save_atomic(
         out, {"format": NETWORKS_FORMAT, "config": state["config"], "networks": networks}
     )
@@ -80,14 +87,8 @@ def initial_networks(config: TrainConfig) -> dict[str, Any]:
             f"dsac.init_networks {path} does not exist: give a run's checkpoint.pt or a file "
             "written by save_networks"
         )
-    state = torch.load(path, map_location="cpu", weights_only=False)
-    if isinstance(state, dict) and state.get("format") == NETWORKS_FORMAT:
-        saved, networks = state["config"], state["networks"]
-    else:
-        state = read_checkpoint(path)
-        saved, networks = state["config"], state["agent"].get("dsac")
-        if networks is None:
-            raise ValueError(f"dsac.init_networks {path} is not a DSAC training checkpoint")
+    state = read_checkpoint(path, also=(NETWORKS_FORMAT,))
+    networks, saved = _dsac_networks(state, path), state["config"]
     encoder = saved.get("encoder")
     if encoder != to_dict(config.encoder):
         raise ValueError(
@@ -99,7 +100,7 @@ def initial_networks(config: TrainConfig) -> dict[str, Any]:
             f"dsac.init_networks {path} acts in the {frame} frame, the run in the "
             f"{config.world.action_frame} frame"
         )
-    return {key: networks[key] for key in NETWORK_KEYS}
+    return networks
 
 
 class DSACAgent:

@@ -23,8 +23,11 @@ def torch_save_atomic(path: Path, obj: Any) -> None:
     atomic_write(path, lambda f: f.write(buffer.getvalue()), mode="wb")
 
 
-def read_checkpoint(path: Path) -> dict[str, Any]:
-    """Load a training checkpoint, turning damage or foreign files into a clear ValueError."""
+def read_checkpoint(path: Path, also: tuple[str, ...] = ()) -> dict[str, Any]:
+    """Load a training checkpoint, turning damage or foreign files into a clear ValueError.
+
+    ``also``: other file formats to return as they are (e.g. a networks file taken from a
+    checkpoint, :func:`crowdplan.algos.dsac_agent.save_networks`)."""
     try:
         state = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as error:  # a truncated or foreign file raises many types
@@ -32,6 +35,8 @@ def read_checkpoint(path: Path) -> dict[str, Any]:
             f"checkpoint {path} is unreadable or corrupted ({error}); "
             "restore it or start a new run folder"
         ) from error
+    if isinstance(state, dict) and state.get("format") in also:
+        return state
     if isinstance(state, dict) and state.get("format") == _DSAC_CHECKPOINT_FORMAT:
         return _from_dsac_checkpoint(state)
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
