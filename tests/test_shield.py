@@ -10,11 +10,13 @@ import pytest
 import torch
 
 from crowdplan.analysis.test_worlds import eval_arguments
+from crowdplan.config import WorldConfig
 from crowdplan.models import load_model_policy, load_payload, resolve_model_path
 from crowdplan.planner_options import with_shield
 from crowdplan.sim.actions import N_ACTIONS
 from crowdplan.sim.shield import Shield
 
+GOAL_FRAME = WorldConfig(action_frame="goal")  # holonomic, linear speeds
 STOP, TO_GOAL_FULL, LEFT_FULL = 0, 1 + 0 * 5 + 4, 1 + 4 * 5 + 4  # goal-frame action indices
 
 
@@ -26,7 +28,7 @@ def scene(human_xy, human_vel=(0.0, 0.0)):
 
 
 def clearance(shield, robot, humans, mask):
-    return shield.clearance(robot, humans, mask, "holonomic", "goal", "linear")[0]
+    return shield.clearance(robot, humans, mask, GOAL_FRAME)[0]
 
 
 def test_clearance_of_a_standing_human_on_the_path():
@@ -48,7 +50,7 @@ def test_clearance_counts_a_human_walking_into_the_robot():
 
 def test_no_humans_means_every_action_is_safe():
     robot, humans, mask = scene((2.0, 0.0))
-    gap = Shield(2.5).clearance(robot, humans, ~mask, "holonomic", "goal", "linear")
+    gap = Shield(2.5).clearance(robot, humans, ~mask, GOAL_FRAME)
     assert np.isinf(gap).all()
     scores = np.random.default_rng(0).normal(size=(1, N_ACTIONS))
     assert Shield(2.5).choose(scores, gap)[0] == scores.argmax()
@@ -92,7 +94,7 @@ def test_shield_overrides_only_the_unsafe_greedy_actions():
     mask = np.ones((64, 5), dtype=bool)
     chosen = shielded.act(robot, humans, mask).actions
     greedy = plain.act(robot, humans, mask).actions
-    gap = Shield(2.5).clearance(robot, humans, mask, "holonomic", "goal", "linear")
+    gap = Shield(2.5).clearance(robot, humans, mask, GOAL_FRAME)
     rows = np.arange(64)
     kept = gap[rows, greedy] >= 0
     np.testing.assert_array_equal(chosen[kept], greedy[kept])

@@ -76,10 +76,7 @@ class GreedyPolicy:
         attention = second.cpu().numpy() if self.attention_output and second is not None else None
         if self.shield is None:
             return PolicyOutput(scores.argmax(dim=1).cpu().numpy(), attention)
-        w, scores = self.world, scores.cpu().numpy()
-        actions = self.shield.act(
-            scores, robot, humans, mask, w.kinematics, w.action_frame, w.speed_sampling
-        )
+        actions = self.shield.act(scores.cpu().numpy(), robot, humans, mask, self.world)
         return PolicyOutput(actions, attention)
 
     def set_shield(self, shield: Shield | None) -> None:
@@ -222,15 +219,13 @@ def load_model_policy(spec: str, shield: float | None = None) -> tuple[Policy, W
     payload = load_payload(path)
     policy, world = algorithm_of_model(payload["format"], path).load_policy(payload, path)
     horizon = shield if shield is not None else model_shield_horizon(payload)
-    if horizon:
-        if not isinstance(policy, GreedyPolicy):
-            raise ValueError(
-                f"{path} is a {payload['format']!r} model; the safety shield filters the scores "
-                "of policies that rank the 81 actions (DSAC, DQN, A2C): drop --shield"
-            )
-        policy.set_shield(Shield(horizon))
-    elif isinstance(policy, GreedyPolicy):
-        policy.set_shield(None)
+    if horizon and not isinstance(policy, GreedyPolicy):
+        raise ValueError(
+            f"{path} is a {payload['format']!r} model; the safety shield filters the scores "
+            "of policies that rank the 81 actions (DSAC, DQN, A2C): drop --shield"
+        )
+    if isinstance(policy, GreedyPolicy):
+        policy.set_shield(Shield(horizon) if horizon else None)
     return policy, world
 
 

@@ -107,10 +107,7 @@ class OnnxPolicy:
         attention = outputs[1] if self.manifest.has_attention else None
         if self.shield is None:
             return PolicyOutput(scores.argmax(axis=1), attention)
-        m = self.manifest
-        actions = self.shield.act(
-            scores, robot, humans, mask, m.kinematics, m.action_frame, m.speed_sampling
-        )
+        actions = self.shield.act(scores, robot, humans, mask, self.manifest)
         return PolicyOutput(actions, attention)
 
     def attention(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> np.ndarray:

@@ -108,3 +108,23 @@ def action_velocities(
     else:
         heading = angle
     return np.stack([speed * np.cos(heading), speed * np.sin(heading)], axis=1), theta
+
+
+def every_action_velocity(
+    robot: np.ndarray,
+    kinematics: str = "holonomic",
+    action_frame: str = "goal",
+    sampling: str = "linear",
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`action_velocities` of all 81 actions for each of E robots: (E, 81, 2) velocities
+    and (E, 81) headings (the candidates of a lookahead or a shield)."""
+    robot = np.asarray(robot, dtype=np.float64)
+    e = len(robot)
+    vel, theta = action_velocities(
+        np.tile(np.arange(N_ACTIONS), e),
+        np.repeat(robot, N_ACTIONS, axis=0),
+        kinematics,
+        action_frame,
+        sampling,
+    )
+    return vel.reshape(e, N_ACTIONS, 2), theta.reshape(e, N_ACTIONS)

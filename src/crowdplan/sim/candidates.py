@@ -30,7 +30,7 @@ import numpy as np
 
 from crowdplan.config import WorldConfig
 from crowdplan.features import Features, robot_centric
-from crowdplan.sim.actions import N_ACTIONS, action_velocities
+from crowdplan.sim.actions import N_ACTIONS, every_action_velocity
 from crowdplan.sim.world import (
     COLLISION,
     GOAL,
@@ -148,15 +148,9 @@ def one_step(
     e, n = mask.shape
     a = N_ACTIONS
     dt = config.dt
-    actions = np.tile(np.arange(a), e)
-    vel, theta = action_velocities(
-        actions,
-        np.repeat(robot, a, axis=0),
-        config.kinematics,
-        config.action_frame,
-        config.speed_sampling,
+    vel, theta = every_action_velocity(
+        robot, config.kinematics, config.action_frame, config.speed_sampling
     )
-    vel, theta = vel.reshape(e, a, 2), theta.reshape(e, a)
     next_robot = np.repeat(robot[:, None], a, axis=1)
     next_robot[..., 0:2] = robot[:, None, 0:2] + vel * dt
     next_robot[..., 2:4] = vel

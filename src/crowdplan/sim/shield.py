@@ -16,11 +16,21 @@ docs/generalization.md measures it; its horizon was chosen on cases that no test
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-from crowdplan.sim.actions import N_ACTIONS, action_velocities
+from crowdplan.sim.actions import every_action_velocity
 from crowdplan.sim.world import point_to_segment_distance
+
+
+class ActionSpace(Protocol):
+    """How action indices become velocities: a :class:`~crowdplan.config.WorldConfig` or an
+    export's :class:`~crowdplan.deploy.manifest.Manifest` both say it."""
+
+    kinematics: str
+    action_frame: str
+    speed_sampling: str
 
 
 @dataclass(frozen=True)
@@ -45,31 +55,22 @@ class Shield:
             raise ValueError(f"shield margin {self.margin!r} m must be >= 0")
 
     def clearance(
-        self,
-        robot: np.ndarray,
-        humans: np.ndarray,
-        mask: np.ndarray,
-        kinematics: str,
-        action_frame: str,
-        speed_sampling: str,
+        self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray, space: ActionSpace
     ) -> np.ndarray:
         """(E, 81) smallest edge-to-edge distance to any present human over the horizon for
         each action (inf without humans; negative: a predicted collision).
 
         Args:
             robot: (E, 9) raw robot states; humans: (E, N, 5) raw human states; mask: (E, N).
-            kinematics, action_frame, speed_sampling: how action indices become velocities
-                (the world the policy drives).
+            space: how action indices become velocities (the world the policy drives).
         """
         robot = np.asarray(robot, dtype=np.float64)
         humans = np.asarray(humans, dtype=np.float64)
         mask = np.asarray(mask, dtype=bool)
-        e = len(robot)
-        actions = np.tile(np.arange(N_ACTIONS), e)
-        vel, _ = action_velocities(
-            actions, np.repeat(robot, N_ACTIONS, axis=0), kinematics, action_frame, speed_sampling
+        vel, _ = every_action_velocity(
+            robot, space.kinematics, space.action_frame, space.speed_sampling
         )
-        vel = vel.reshape(e, N_ACTIONS, 1, 2)
+        vel = vel[:, :, None]  # (E, A, 1, 2)
         start = (humans[..., 0:2] - robot[:, None, 0:2])[:, None]  # (E, 1, N, 2)
         end = start + (humans[:, None, :, 2:4] - vel) * self.horizon  # (E, A, N, 2)
         gap = point_to_segment_distance(start, end) - humans[:, None, :, 4]
@@ -82,14 +83,11 @@ class Shield:
         robot: np.ndarray,
         humans: np.ndarray,
         mask: np.ndarray,
-        kinematics: str,
-        action_frame: str,
-        speed_sampling: str,
+        space: ActionSpace,
     ) -> np.ndarray:
         """(E,) the shielded greedy actions for action ``scores`` (E, 81) of raw observations:
         :meth:`choose` over :meth:`clearance` (same arguments)."""
-        clearance = self.clearance(robot, humans, mask, kinematics, action_frame, speed_sampling)
-        return self.choose(scores, clearance)
+        return self.choose(scores, self.clearance(robot, humans, mask, space))
 
     def choose(self, scores: np.ndarray, clearance: np.ndarray) -> np.ndarray:
         """(E,) the highest-scoring safe action of each environment, or the action with the
