@@ -29,9 +29,18 @@ def exported_lsa(tmp_path_factory):
 
 
 def test_noise_free_deployment_reproduces_eval(exported_lsa):
-    policy, world = load_model_policy("lsa-dsac-paper")
+    assert_deployment_reproduces_eval("lsa-dsac-paper", exported_lsa)
+
+
+def test_noise_free_deployment_of_the_unicycle_model_reproduces_eval(tmp_path):
+    export_model("lsa-dsac-unicycle", tmp_path / "export")
+    assert_deployment_reproduces_eval("lsa-dsac-unicycle", tmp_path / "export")
+
+
+def assert_deployment_reproduces_eval(model, export_folder):
+    policy, world = load_model_policy(model)
     expected = evaluation.run_episodes(policy, world, CASES)
-    records, stats = run_deployment(OnnxPolicy(exported_lsa), world, CASES)
+    records, stats = run_deployment(OnnxPolicy(export_folder), world, CASES)
     assert stats["safety_stop_share"] == 0.0
     for got, want in zip(records, expected, strict=True):
         assert (got.outcome, got.steps) == (want.outcome, want.steps)

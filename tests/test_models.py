@@ -6,6 +6,7 @@ import torch
 
 from crowdplan.algos.dsac import DSAC, DSACConfig
 from crowdplan.config import WorldConfig
+from crowdplan.evaluation import run_episodes, validation_seeds
 from crowdplan.models import load_model_policy, model_payload
 from crowdplan.nets.encoders import EncoderConfig
 
@@ -64,3 +65,17 @@ def test_model_for_another_action_space_is_refused(tmp_path):
 def test_shipped_model_loads_by_name():
     policy, world = load_model_policy("lsa-dsac-paper")
     assert world.humans == 5 and policy.metadata["encoder"] == "lsa"
+
+
+def test_shipped_unicycle_model_reaches_goals_within_its_turn_limit():
+    policy, world = load_model_policy("lsa-dsac-unicycle")
+    assert world.kinematics == "unicycle" and world.humans == 5
+    records = run_episodes(policy, world, validation_seeds(20), record_traces=True)
+    assert sum(r.outcome == "goal" for r in records) >= 17
+    for record in records:
+        vel = record.trace.robot_vel
+        moving = np.linalg.norm(vel, axis=1) > 1e-6
+        both = moving[1:] & moving[:-1]
+        heading = np.arctan2(vel[:, 1], vel[:, 0])
+        turn = np.angle(np.exp(1j * (heading[1:] - heading[:-1])))[both]
+        assert np.all(np.abs(turn) <= np.pi / 4 + 1e-6)  # never more than one step's rotation
