@@ -211,7 +211,9 @@ def _crowdplan(*args: str) -> list[str]:
 def test_ctrl_c_during_eval(tmp_path):
     # SARL's lookahead, one episode at a time, takes minutes for the 500 cases (ORCA could finish
     # before the signal arrives).
-    argv = _crowdplan("eval", "--model", "sarl", "--batch-size", "1", "--out", str(tmp_path / "res"))
+    argv = _crowdplan(
+        "eval", "--model", "sarl", "--batch-size", "1", "--out", str(tmp_path / "res")
+    )
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     first = proc.stderr.readline()  # the first progress line: episodes are running
     assert first.startswith("eval sarl: "), first
