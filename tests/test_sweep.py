@@ -3,10 +3,13 @@ trials, the summary across seeds, and sharded evaluation on a local process pool
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -255,6 +258,41 @@ def _die_once(flag: str, x: int) -> int:
         Path(flag).touch()
         os._exit(1)  # as a killed worker process
     return x * x
+
+
+def test_sigterm_stops_the_sweep_and_its_running_trial_with_a_checkpoint(tmp_path):
+    # A scheduler's or `kill`'s SIGTERM reaches the sweep process only (not its process group, as
+    # Ctrl-C does); the trial running in the pool's worker must not go on training on its own.
+    config = tmp_path / "long.yaml"
+    config.write_text(yaml.safe_dump({**TINY, "episodes": 100_000}))
+    out = tmp_path / "sweep"
+    argv = ["sweep", "--config", str(config), "--out", str(out), "--workers", "1"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "crowdplan.cli", *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        episodes = out / "runs" / "tiny-s0" / "episodes.csv"
+        deadline = time.monotonic() + 120
+        while not (episodes.is_file() and episodes.read_text().count("\n") >= 3):
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+        assert proc.returncode == 130, err
+        assert err.strip().splitlines()[-1] == "crowdplan sweep: interrupted"
+        log = (out / "logs" / "tiny-s0.log").read_text()
+        worker = int(log.split()[1])  # "pid N on HOST: crowdplan train ..."
+        with pytest.raises(ProcessLookupError):
+            os.kill(worker, 0)
+        assert "stopped at episode" in log
+        assert (out / "runs" / "tiny-s0" / "checkpoint.pt").is_file()
+    finally:  # nothing left running if the test fails
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
 
 
 def test_sharded_evaluation_equals_the_single_process_one(tmp_path):

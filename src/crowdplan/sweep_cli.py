@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
 
 from crowdplan.backends import BACKENDS
@@ -72,14 +74,15 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         from crowdplan.backends.ray import cluster_address
 
         cluster_address(args.address)
-    summary = run_sweep(
-        args.out,
-        base,
-        trials,
-        args.threads_per_trial,
-        lambda: make_backend(args.backend, args.workers, args.address),
-        report=lambda line: print(line, file=sys.stderr, flush=True),
-    )
+    with _sigterm_as_interrupt():
+        summary = run_sweep(
+            args.out,
+            base,
+            trials,
+            args.threads_per_trial,
+            lambda: make_backend(args.backend, args.workers, args.address),
+            report=lambda line: print(line, file=sys.stderr, flush=True),
+        )
     print(format_summary(summary), end="")
     failed = [name for row in summary["settings"] for name in row["failed"]]
     if failed:
@@ -89,3 +92,20 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return 1
     print(f"wrote {args.out}/summary.json and summary.md", file=sys.stderr)
     return 0
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """While active, SIGTERM stops the sweep as Ctrl-C does: the running trials are told to stop
+    and save their checkpoints, and the sweep waits for them before it exits (status 130). A
+    second SIGTERM kills the sweep at once (its trials still stop on their own)."""
+
+    def interrupt(signum, frame):
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)

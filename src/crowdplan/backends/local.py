@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
+import signal
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -49,6 +51,9 @@ class LocalBackend:
                             continue  # a worker died: rerun its jobs in a new pool
                         del pending[index]
                         yield index, result
+            except BaseException:
+                _stop_workers()
+                raise
             finally:
                 pool.shutdown(wait=True, cancel_futures=True)
             if not pending:
@@ -60,3 +65,13 @@ class LocalBackend:
 
     def close(self) -> None:
         """Nothing to release: each map shuts its pool down."""
+
+
+def _stop_workers() -> None:
+    """SIGTERM to this process's worker processes, so that a map stopped by an interrupt (or an
+    error) does not leave its jobs running: a sweep trial then saves its checkpoint and exits,
+    and the pool's shutdown waits for it."""
+    for worker in multiprocessing.active_children():
+        if worker.pid is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(worker.pid, signal.SIGTERM)
