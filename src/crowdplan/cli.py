@@ -359,6 +359,14 @@ def build_parser() -> argparse.ArgumentParser:
         "(default: the config's val_interval)",
     )
     p.add_argument(
+        "--keep-validation-models",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="write the greedy policy of every validation to validation_models/ in the run "
+        "folder, for python -m crowdplan.analysis.argmax_flips; may change on --resume "
+        "(default: the config's keep_validation_models)",
+    )
+    p.add_argument(
         "--parallel-update",
         action=argparse.BooleanOptionalAction,
         default=None,

@@ -7,7 +7,7 @@ import contextlib
 import signal
 import sys
 
-from crowdplan.backends import BACKENDS
+from crowdplan.backends import BACKENDS, JobInterrupted
 
 
 def add_command(sub: argparse._SubParsersAction) -> None:
@@ -60,6 +60,7 @@ def add_command(sub: argparse._SubParsersAction) -> None:
 def cmd_sweep(args: argparse.Namespace) -> int:
     from crowdplan.backends import make_backend
     from crowdplan.backends.sweep import expand, format_summary, parse_grid, parse_seeds, run_sweep
+    from crowdplan.cli import EXIT_INTERRUPTED
     from crowdplan.training import load_config
 
     if args.threads_per_trial < 1:
@@ -74,15 +75,23 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         from crowdplan.backends.ray import cluster_address
 
         cluster_address(args.address)
-    with _sigterm_as_interrupt():
-        summary = run_sweep(
-            args.out,
-            base,
-            trials,
-            args.threads_per_trial,
-            lambda: make_backend(args.backend, args.workers, args.address),
-            report=lambda line: print(line, file=sys.stderr, flush=True),
+    try:
+        with _sigterm_as_interrupt():
+            summary = run_sweep(
+                args.out,
+                base,
+                trials,
+                args.threads_per_trial,
+                lambda: make_backend(args.backend, args.workers, args.address),
+                report=lambda line: print(line, file=sys.stderr, flush=True),
+            )
+    except JobInterrupted as stopped:  # a signal sent to one trial's worker process
+        print(
+            f"crowdplan sweep: {stopped}; the other running trials were stopped too. Run the "
+            "same command again to resume them",
+            file=sys.stderr,
         )
+        return EXIT_INTERRUPTED
     print(format_summary(summary), end="")
     failed = [name for row in summary["settings"] for name in row["failed"]]
     if failed:

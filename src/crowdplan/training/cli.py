@@ -69,8 +69,9 @@ def _resumed_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
     if fixed:
         raise ValueError(
             f"--resume continues the run in {args.out} with its own config.yaml, so "
-            f"{' and '.join(fixed)} cannot apply; only --episodes, --val-interval and "
-            "--[no-]parallel-update may change on resume (start a new --out to change the rest)"
+            f"{' and '.join(fixed)} cannot apply; only --episodes, --val-interval, "
+            "--[no-]keep-validation-models and --[no-]parallel-update may change on resume "
+            "(start a new --out to change the rest)"
         )
     run_dir = Path(args.out)
     if not (run_dir / "checkpoint.pt").is_file():
@@ -81,7 +82,11 @@ def _resumed_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
 def train_from_cli(args: argparse.Namespace) -> int:
     """Run ``crowdplan train``; returns the exit status (130 when stopped by a signal)."""
     config, run_dir = _resumed_run_config(args) if args.resume else _new_run_config(args)
-    overrides = {"episodes": args.episodes, "val_interval": args.val_interval}
+    overrides = {
+        "episodes": args.episodes,
+        "val_interval": args.val_interval,
+        "keep_validation_models": args.keep_validation_models,
+    }
     config = dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
     if args.parallel_update is not None:
         config = _with_algo_option(

@@ -32,6 +32,9 @@ class TrainConfig:
         num_envs: environments stepped together; each env step is one transition per env.
         val_interval: episodes between validations on the validation cases.
         val_episodes: validation cases per validation (the validation split has 100).
+        keep_validation_models: also write each validation's greedy policy to
+            ``validation_models/episode-NNNNNN.pt`` (for ``crowdplan.analysis.argmax_flips``;
+            about 0.4 MB each for LSA-DSAC).
         checkpoint_interval: episodes between checkpoints.
         log_interval: episodes between progress lines and update-statistics rows.
         test_episodes: test cases evaluated at the end (0 skips the final test).
@@ -49,6 +52,7 @@ class TrainConfig:
     num_envs: int = spec(8, low=1)
     val_interval: int = spec(500, low=1)
     val_episodes: int = spec(100, low=1, high=100)
+    keep_validation_models: bool = False
     checkpoint_interval: int = spec(250, low=1)
     log_interval: int = spec(50, low=1)
     test_episodes: int = spec(500, low=0, high=500)

@@ -11,6 +11,7 @@ A run folder holds:
     tb/                  TensorBoard logs of the same curves
     checkpoint.pt        everything needed to resume exactly (written atomically)
     best_model.pt        policy with the best validation reward so far; final_model.pt at the end
+    validation_models/   with keep_validation_models: the greedy policy of every validation
     test/                summary.json + episodes.jsonl of the test cases (best model)
 """
 
@@ -162,6 +163,10 @@ class Trainer:
             **{k: summary[k]["value"] for k in VALIDATION_METRICS},
         }
         self.validations.append(row)
+        if self.config.keep_validation_models:
+            path = self.run_dir / "validation_models" / f"episode-{row['episode']:06d}.pt"
+            path.parent.mkdir(exist_ok=True)
+            self.save_model(path, {"success_rate": row["success_rate"]})
         if row["mean_reward"] > self.best_val_reward:
             self.best_val_reward = row["mean_reward"]
             self.save_model(self.run_dir / "best_model.pt", {"selected_at_episode": row["episode"]})
@@ -261,15 +266,16 @@ class Trainer:
     def restore(self, path: Path) -> None:
         """Continue from a checkpoint of the same configuration.
 
-        Only the episode budget, the validation interval and the algorithm's own
-        ``RESUME_MUTABLE`` settings may differ: none of them changes the training trajectory
-        (validation runs its own worlds, greedily, without randomness).
+        Only the episode budget, the validation interval, ``keep_validation_models`` and the
+        algorithm's own ``RESUME_MUTABLE`` settings may differ: none of them changes the training
+        trajectory (validation runs its own worlds, greedily, without randomness).
         """
         state = read_checkpoint(path)
         # normalised through TrainConfig, so options added since the checkpoint take defaults
         saved = config_from_dict(with_legacy_defaults(state["config"])).to_dict()
         current = self.config.to_dict()
-        saved.update(episodes=current["episodes"], val_interval=current["val_interval"])
+        for key in ("episodes", "val_interval", "keep_validation_models"):
+            saved[key] = current[key]
         algo = self.config.algo
         for key in getattr(type(self.config.algo_config), "RESUME_MUTABLE", ()):
             if algo in saved:
