@@ -8,7 +8,7 @@ import pytest
 import torch
 import yaml
 
-from crowdplan.analysis.argmax_flips import flip_table, main, probe_states
+from crowdplan.analysis.argmax_flips import flip_table, main, probe_states, snapshots
 from crowdplan.cli import main as crowdplan_main
 from crowdplan.config import WorldConfig
 
@@ -75,7 +75,7 @@ def test_identical_snapshots_do_not_flip_and_different_ones_are_counted(snapshot
     payload["info"]["episodes_trained"] = 30
     torch.save(payload, run / "validation_models" / "episode-000030.pt")
 
-    rows = flip_table(run, cases=3)
+    rows = flip_table(snapshots(run), cases=3)
     assert len(rows) == 3 and rows[2]["episode"] == 30
     assert math.isnan(rows[0]["flipped"]) and rows[1]["flipped"] == 0.0
     assert rows[0]["p_greedy"] == rows[1]["p_greedy"]

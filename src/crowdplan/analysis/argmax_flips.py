@@ -19,6 +19,7 @@ Per validation it reports:
 ::
 
     python -m crowdplan.analysis.argmax_flips runs/RUN [--cases 20] [--out DIR]
+    python -m crowdplan.analysis.argmax_flips MODEL.pt MODEL.pt ...   # any models of one world
 """
 
 from __future__ import annotations
@@ -41,7 +42,15 @@ from crowdplan.models import GreedyPolicy, load_model_policy
 from crowdplan.sim.world import RUNNING, World
 
 SNAPSHOTS = "validation_models"
-COLUMNS = ("episode", "success_rate", "flipped", "changed_from_final", "p_greedy", "narrow")
+COLUMNS = (
+    "model",
+    "episode",
+    "success_rate",
+    "flipped",
+    "changed_from_final",
+    "p_greedy",
+    "narrow",
+)
 
 
 def probe_states(world: WorldConfig, cases: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -69,15 +78,21 @@ def action_scores(policy: GreedyPolicy, probes: tuple[np.ndarray, ...]) -> np.nd
     return scores.numpy()
 
 
-def flip_table(folder: Path, cases: int = 20) -> list[dict[str, float]]:
-    """One row per snapshot in ``folder/validation_models`` (in episode order); see the module
-    docstring for the columns."""
+def snapshots(folder: Path) -> list[Path]:
+    """The validation snapshots of a run folder, in episode order."""
     paths = sorted((folder / SNAPSHOTS).glob("episode-*.pt"))
     if not paths:
         raise FileNotFoundError(
             f"{folder / SNAPSHOTS} holds no snapshots; train (or resume) the run with "
             "--keep-validation-models"
         )
+    return paths
+
+
+def flip_table(paths: list[Path], cases: int = 20) -> list[dict[str, float]]:
+    """One row per model file, in the order given (a run's :func:`snapshots`, or any models of
+    the same world); see the module docstring for the columns. The probe states come from the
+    first model's world."""
     probes = None
     scores, episodes, success = [], [], []
     for path in paths:
@@ -98,6 +113,7 @@ def flip_table(folder: Path, cases: int = 20) -> list[dict[str, float]]:
         probs /= probs.sum(axis=1, keepdims=True)
         rows.append(
             {
+                "model": str(paths[k]),
                 "episode": episodes[k],
                 "success_rate": success[k],
                 "flipped": float(np.mean(greedy[k] != greedy[k - 1])) if k else math.nan,
@@ -111,10 +127,10 @@ def flip_table(folder: Path, cases: int = 20) -> list[dict[str, float]]:
 
 def format_table(rows: list[dict[str, float]]) -> str:
     """Markdown table of :func:`flip_table`'s rows."""
-    lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---:|" * len(COLUMNS)]
+    lines = ["| " + " | ".join(COLUMNS) + " |", "|---|" + "---:|" * (len(COLUMNS) - 1)]
     for row in rows:
-        cells = [str(row["episode"])]
-        cells += ["" if math.isnan(row[c]) else f"{row[c]:.3f}" for c in COLUMNS[1:]]
+        cells = [row["model"], str(row["episode"])]
+        cells += ["" if math.isnan(row[c]) else f"{row[c]:.3f}" for c in COLUMNS[2:]]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -149,7 +165,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m crowdplan.analysis.argmax_flips", description=__doc__.split("\n")[0]
     )
-    parser.add_argument("run", help="run folder trained with --keep-validation-models")
+    parser.add_argument(
+        "run",
+        nargs="+",
+        help="a run folder trained with --keep-validation-models, or model files (.pt) of one "
+        "world, compared in the order given",
+    )
     parser.add_argument(
         "--cases", type=int, default=20, help="validation cases of the probe states (default: 20)"
     )
@@ -157,14 +178,18 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not 1 <= args.cases <= 100:
         parser.error(f"--cases must be in [1, 100] (the validation split), got {args.cases}")
-    folder = Path(args.run)
-    rows = flip_table(folder, args.cases)
+    if len(args.run) == 1 and Path(args.run[0]).is_dir():
+        folder = Path(args.run[0])
+        paths, name = snapshots(folder), folder.name
+    else:
+        paths, name = [Path(p) for p in args.run], "models"
+    rows = flip_table(paths, args.cases)
     print(format_table(rows), end="")
     if args.out:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
-        atomic_write(out / f"{folder.name}-argmax_flips.csv", lambda f: _write_csv(f, rows))
-        plot(rows, folder.name, out / f"{folder.name}-argmax_flips.png")
+        atomic_write(out / f"{name}-argmax_flips.csv", lambda f: _write_csv(f, rows))
+        plot(rows, name, out / f"{name}-argmax_flips.png")
     return 0
 
 
