@@ -120,6 +120,7 @@ def flip_table(paths: list[Path], cases: int = 20) -> list[dict[str, float]]:
                 "changed_from_final": float(np.mean(greedy[k] != greedy[-1])),
                 "p_greedy": float(np.median(probs.max(axis=1))),
                 "narrow": float(np.mean(top2[:, 1] - top2[:, 0] < math.log(2))),
+                "probe_states": len(s),
             }
         )
     return rows
@@ -156,7 +157,7 @@ def plot(rows: list[dict[str, float]], title: str, path: Path) -> None:
 
 
 def _write_csv(file, rows: list[dict[str, float]]) -> None:
-    writer = csv.DictWriter(file, fieldnames=COLUMNS, lineterminator="\n")
+    writer = csv.DictWriter(file, fieldnames=[*COLUMNS, "probe_states"], lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
 
@@ -184,6 +185,10 @@ def main(argv: list[str] | None = None) -> int:
     else:
         paths, name = [Path(p) for p in args.run], "models"
     rows = flip_table(paths, args.cases)
+    print(
+        f"{rows[0]['probe_states']} probe states: ORCA's paths through validation cases "
+        f"0..{args.cases - 1}"
+    )
     print(format_table(rows), end="")
     if args.out:
         out = Path(args.out)
