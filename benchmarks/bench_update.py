@@ -1,6 +1,7 @@
 """Time one DSAC update and compare its FLOP rate with a large matmul measured in the same run.
 
     python benchmarks/bench_update.py [--encoder lsa] [--threads 1] [--humans 5] [--batch 128]
+        [--cpu-clock] [--parallel-update] [--bf16] [--profile]
 
 Prints a markdown table: ms per update (best of ``--rounds`` rounds of ``--iters`` updates after
 ``--warmup``; the best round is the least disturbed by other processes), GFLOP per update counted
@@ -61,6 +62,19 @@ def time_update(
             agent.update(batch)
         best = min(best, (clock() - start) / iters)
     return best
+
+
+class BF16Update:
+    """A serial DSAC update run under ``torch.autocast("cpu", dtype=torch.bfloat16)``: matmuls
+    and the LSTM in bfloat16 (oneDNN's AVX512-BF16 kernels where the CPU has them), parameters
+    and optimiser state in float32."""
+
+    def __init__(self, encoder: EncoderConfig, batch: int):
+        self.agent = DSAC(DSACConfig(batch_size=batch), encoder)
+
+    def update(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            return self.agent.update(batch)
 
 
 def count_update_flops(agent: DSAC, batch: dict[str, torch.Tensor]) -> int:
@@ -154,6 +168,12 @@ def main() -> None:
         "on two threads) and print its speed-up over the serial update of the same run",
     )
     parser.add_argument(
+        "--bf16",
+        action="store_true",
+        help="also time the serial update under torch.autocast(cpu, bfloat16) and print its "
+        "speed-up over float32, timed back to back (CPU only)",
+    )
+    parser.add_argument(
         "--profile",
         action="store_true",
         help="also print where the serial update's CPU time goes, by op category "
@@ -162,6 +182,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.cpu_clock and (args.device != "cpu" or args.parallel_update):
         parser.error("--cpu-clock times one host thread: not with CUDA or --parallel-update")
+    if args.bf16 and args.device != "cpu":
+        parser.error("--bf16 times CPU autocast; on CUDA use the device's own precision options")
 
     torch.set_num_threads(args.threads)
     encoder = EncoderConfig(name=args.encoder, max_humans=args.humans)
@@ -204,6 +226,14 @@ def main() -> None:
         print("\n| serial update ms | parallel update ms | speed-up |")
         print("|---:|---:|---:|")
         print(f"| {serial * 1e3:.2f} | {timing * 1e3:.2f} | {serial / timing:.2f}x |")
+    if args.bf16:
+        bf16 = time_update(
+            BF16Update(encoder, args.batch), batch, args.warmup, args.iters, args.rounds, clock
+        )
+        serial = time_update(agent, batch, 0, args.iters, args.rounds, clock)
+        print("\n| float32 update ms | bfloat16 autocast update ms | speed-up |")
+        print("|---:|---:|---:|")
+        print(f"| {serial * 1e3:.2f} | {bf16 * 1e3:.2f} | {serial / bf16:.2f}x |")
     if args.profile:
         print("\n| op category (serial update, profiled) | ms per update | share |")
         print("|---|---:|---:|")

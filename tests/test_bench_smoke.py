@@ -39,9 +39,10 @@ def test_bench_sim_quick():
 
 def test_bench_update_quick():
     args = ["--batch", "16", "--warmup", "1", "--iters", "2", "--rounds", "1"]
-    result = _run_bench("bench_update.py", *args, "--parallel-update", "--profile")
+    result = _run_bench("bench_update.py", *args, "--parallel-update", "--bf16", "--profile")
     assert "| update ms |" in result.stdout and "ratio" in result.stdout
     assert "| serial update ms | parallel update ms | speed-up |" in result.stdout
+    assert "| float32 update ms | bfloat16 autocast update ms | speed-up |" in result.stdout
     shares = [
         float(line.rsplit("|", 2)[1].strip().rstrip("%"))
         for line in result.stdout.splitlines()
