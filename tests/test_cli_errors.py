@@ -89,6 +89,10 @@ REFUSED = [
     (["eval", "--model", "{tmp}/notes.txt"], "is not a torch archive, not a model file"),
     (["eval", "--model", "{tmp}/empty-run"], "holds no model"),
     (["eval", "--model", "no-such-model"], "or a shipped model name ("),
+    # --lookahead: a value-network model's option only
+    (["eval", "--lookahead", "oracle"], "use it with --model"),
+    (["eval", "--model", "lsa-dsac", "--lookahead", "oracle"], "lsa-dsac is not one"),
+    (["render", "--model", "lstm-a2c", "--lookahead", "oracle", "--out", "{tmp}/x.png"], "drop"),
     # outputs: checked before the work, never replaced without --force
     (["eval", "--out", "{tmp}/file"], "is a file; give a folder"),
     (["eval", "--out", "{tmp}/file/sub"], "is a file, not a folder"),

@@ -260,6 +260,11 @@ def test_cli_train_eval_render(tmp_path, capsys):
     out = tmp_path / "eval"
     assert main(["eval", "--model", str(run), "--episodes", "2", "--out", str(out)]) == 0
     assert json.loads((out / "summary.json").read_text())["meta"]["algo"] == "value_rl"
+    # a constant-velocity model evaluated with CrowdNav's oracle lookahead: the result says so
+    argv = ["eval", "--model", str(run), "--episodes", "2", "--lookahead", "oracle"]
+    assert main([*argv, "--out", str(tmp_path / "oracle")]) == 0
+    oracle = json.loads((tmp_path / "oracle" / "summary.json").read_text())
+    assert oracle["meta"]["lookahead"] == "oracle"
     png = tmp_path / "m.png"
     assert main(["render", "--model", str(run), "--case", "0", "--out", str(png)]) == 0
     assert png.stat().st_size > 0

@@ -72,6 +72,14 @@ def _add_policy_args(parser: argparse.ArgumentParser) -> None:
         "to hit a human within SECONDS (constant velocities; docs/generalization.md); 0: off "
         "(default: the model's own, e.g. 2.5 s for lsa-dsac, none for the paper's models)",
     )
+    parser.add_argument(
+        "--lookahead",
+        choices=("constant_velocity", "oracle"),
+        default=None,
+        help="value-network models (cadrl, lstm-rl, sarl): the humans' next states in the "
+        "one-step lookahead, constant velocity or the simulator's true ones (CrowdNav's "
+        "protocol); recorded in summary.json (default: the model's own)",
+    )
 
 
 def _add_output_args(parser: argparse.ArgumentParser, what: str) -> None:
@@ -139,7 +147,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.out:
         files = RESULT_FILES + (("records.npz",) if args.record else ())
         check_output_folder(args.out, files, args.force)
-    policy, base = load_policy(args.policy, args.model, args.shield)
+    policy, base = load_policy(args.policy, args.model, args.shield, args.lookahead)
     config = _world_config(args, policy, base)
 
     records: list = []
@@ -198,7 +206,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise ValueError(f"--case must be >= 0, got {args.case}")
     seed = evaluation.SPLITS[args.split].seed(args.case)
     check_output_file(args.out, args.force, RENDER_SUFFIXES)
-    policy, base = load_policy(args.policy, args.model, args.shield)
+    policy, base = load_policy(args.policy, args.model, args.shield, args.lookahead)
     config = _world_config(args, policy, base)
     (record,) = evaluation.run_episodes(policy, config, [seed], record_traces=True)
     title = f"{policy.name}, {args.split} case {args.case}: {record.outcome} at {record.time:.2f} s"

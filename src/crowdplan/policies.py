@@ -39,17 +39,33 @@ def parse_options(items: list[str], own_flags: tuple[str, ...] = ()) -> dict:
 
 
 def load_policy(
-    policy: str | None, model: str | None, shield: float | None = None
+    policy: str | None,
+    model: str | None,
+    shield: float | None = None,
+    lookahead: str | None = None,
 ) -> tuple[Policy, WorldConfig]:
     """A policy plus the world config it expects (a trained model brings its own).
 
     ``shield``: a trained model's safety-shield horizon in seconds (0: off, None: the model's
     own; see :func:`crowdplan.models.load_model_policy`); built-in planners take none.
+    ``lookahead``: the lookahead mode of a value-network model (None: the model's own).
     """
     if model is not None:
         from crowdplan.models import load_model_policy
 
-        return load_model_policy(model, shield)
+        loaded, world = load_model_policy(model, shield)
+        if lookahead is not None:
+            from crowdplan.algos.value_rl import ValuePolicy
+
+            if not isinstance(loaded, ValuePolicy):
+                raise ValueError(
+                    f"--lookahead applies to value-network models (cadrl, lstm-rl, sarl); "
+                    f"{model} is not one: drop --lookahead"
+                )
+            loaded.set_lookahead(lookahead)
+        return loaded, world
+    if lookahead is not None:
+        raise ValueError("--lookahead sets a value-network model's lookahead: use it with --model")
     if shield:
         raise ValueError("--shield filters a trained model's action scores: use it with --model")
     name = policy or "orca"

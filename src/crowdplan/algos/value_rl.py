@@ -123,6 +123,14 @@ class ValuePolicy:
         self.kinematics = world.kinematics
         self._sim: World | None = None
 
+    def set_lookahead(self, mode: str) -> None:
+        """Propagate the humans by ``mode`` from the next decision on; recorded in the
+        metadata (and so in every result written with this policy)."""
+        if mode not in LOOKAHEAD_MODES:
+            raise ValueError(f"lookahead must be one of {list(LOOKAHEAD_MODES)}, got {mode!r}")
+        self.lookahead = mode
+        self.metadata["lookahead"] = mode
+
     def bind_world(self, world: World) -> None:
         """Play in ``world`` from now on (its observations are the ones :meth:`act` gets)."""
         self._sim = world
