@@ -18,7 +18,7 @@ Per validation it reports:
 
 ::
 
-    python -m crowdplan.analysis.argmax_flips runs/RUN [--cases 20] [--out DIR]
+    python -m crowdplan.analysis.argmax_flips runs/RUN [--cases 100] [--out DIR]
     python -m crowdplan.analysis.argmax_flips MODEL.pt MODEL.pt ...   # any models of one world
 """
 
@@ -89,7 +89,7 @@ def snapshots(folder: Path) -> list[Path]:
     return paths
 
 
-def flip_table(paths: list[Path], cases: int = 20) -> list[dict[str, float]]:
+def flip_table(paths: list[Path], cases: int = 100) -> list[dict[str, float]]:
     """One row per model file, in the order given (a run's :func:`snapshots`, or any models of
     the same world); see the module docstring for the columns. The probe states come from the
     first model's world."""
@@ -102,9 +102,8 @@ def flip_table(paths: list[Path], cases: int = 20) -> list[dict[str, float]]:
         if probes is None:
             probes = probe_states(world, cases)
         scores.append(action_scores(policy, probes))
-        info = torch.load(path, map_location="cpu", weights_only=False)["info"]
-        episodes.append(int(info["episodes_trained"]))
-        success.append(float(info.get("success_rate", math.nan)))
+        episodes.append(int(policy.metadata["episodes_trained"]))  # the model file's info
+        success.append(float(policy.metadata.get("success_rate", math.nan)))
     greedy = [s.argmax(axis=1) for s in scores]
     rows = []
     for k, s in enumerate(scores):
@@ -173,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
         "world, compared in the order given",
     )
     parser.add_argument(
-        "--cases", type=int, default=20, help="validation cases of the probe states (default: 20)"
+        "--cases", type=int, default=100, help="validation cases of the probe states (default: 100)"
     )
     parser.add_argument("--out", help="folder for argmax_flips.csv and .png (default: none)")
     args = parser.parse_args(argv)
