@@ -1,4 +1,10 @@
-"""Jobs on a pool of local worker processes (spawned, so each starts with clean state)."""
+"""Jobs on a pool of local worker processes (spawned, so each starts with clean state).
+
+Stopping: a map stopped by an interrupt or an error sends SIGTERM to its workers, and a sweep
+trial then saves its checkpoint and exits. A worker takes SIGTERM and SIGINT as a fresh Python
+process does only while it runs a job; idle or passing a result back, it notes them instead,
+since dying there could leave the pool's result queue locked and the map waiting forever.
+"""
 
 from __future__ import annotations
 
@@ -11,10 +17,12 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
-from crowdplan.backends import run_with_threads
+from crowdplan.backends import JobInterrupted, run_with_threads
 
 # New pools started after a worker process died, before the map gives up.
 POOL_RESTARTS = 3
+STOP_SIGNALS = {signal.SIGTERM: signal.SIG_DFL, signal.SIGINT: signal.default_int_handler}
+_stop_noted = False  # in a worker: a stop signal arrived while no job ran
 
 
 class LocalBackend:
@@ -35,10 +43,10 @@ class LocalBackend:
                 min(workers, max(len(pending), 1)),
                 mp_context=multiprocessing.get_context("spawn"),
                 max_tasks_per_child=1,
+                initializer=_note_stop_signals,
             )
             futures: dict[Future, int] = {
-                pool.submit(run_with_threads, threads, fn, job): index
-                for index, job in pending.items()
+                pool.submit(_run_job, threads, fn, job): index for index, job in pending.items()
             }
             try:
                 while futures:
@@ -65,6 +73,30 @@ class LocalBackend:
 
     def close(self) -> None:
         """Nothing to release: each map shuts its pool down."""
+
+
+def _note_stop_signals() -> None:
+    """Worker initializer: outside jobs, a stop signal is noted, not acted on."""
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, _note_stop)
+
+
+def _note_stop(signum, frame) -> None:
+    global _stop_noted
+    _stop_noted = True
+
+
+def _run_job(threads: int, fn: Callable[..., Any], job: tuple) -> Any:
+    """In a worker: ``fn(*job)`` with the usual signal handling (a training run installs its
+    own); refused if a stop signal came before it started."""
+    if _stop_noted:
+        raise JobInterrupted("a stop signal arrived before the job started")
+    for sig, handler in STOP_SIGNALS.items():
+        signal.signal(sig, handler)
+    try:
+        return run_with_threads(threads, fn, job)
+    finally:
+        _note_stop_signals()
 
 
 def _stop_workers() -> None:
