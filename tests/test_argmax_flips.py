@@ -11,20 +11,7 @@ import yaml
 from crowdplan.analysis.argmax_flips import flip_table, main, probe_states, snapshots
 from crowdplan.cli import main as crowdplan_main
 from crowdplan.config import WorldConfig
-
-TINY = {
-    "name": "tiny",
-    "episodes": 4,
-    "num_envs": 2,
-    "val_interval": 2,
-    "val_episodes": 2,
-    "checkpoint_interval": 2,
-    "log_interval": 2,
-    "test_episodes": 0,
-    "world": {"humans": 2, "time_limit": 2.0},
-    "encoder": {"name": "aw"},
-    "dsac": {"batch_size": 8, "random_steps": 8, "learning_starts": 8},
-}
+from tests.test_sweep import TINY
 
 
 @pytest.fixture(scope="module")
