@@ -69,10 +69,17 @@ class GreedyPolicy:
         self.unicycle = world.kinematics == "unicycle"
 
     @torch.no_grad()
-    def act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> PolicyOutput:
+    def network_outputs(
+        self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The network's per-action scores (E, A) and its second output, before any shield."""
         feats = robot_centric(robot, humans, mask, self.unicycle)
         device = next(self.network.parameters()).device
-        scores, second = self.network(*(torch.from_numpy(x).to(device) for x in feats))
+        return self.network(*(torch.from_numpy(x).to(device) for x in feats))
+
+    @torch.no_grad()
+    def act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> PolicyOutput:
+        scores, second = self.network_outputs(robot, humans, mask)
         attention = second.cpu().numpy() if self.attention_output and second is not None else None
         if self.shield is None:
             return PolicyOutput(scores.argmax(dim=1).cpu().numpy(), attention)

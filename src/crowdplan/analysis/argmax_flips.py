@@ -31,12 +31,10 @@ import math
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from crowdplan import evaluation
 from crowdplan.algos.orca_planner import OrcaPlanner
 from crowdplan.config import WorldConfig
-from crowdplan.features import robot_centric
 from crowdplan.io import atomic_write
 from crowdplan.models import GreedyPolicy, load_model_policy
 from crowdplan.sim.world import RUNNING, World
@@ -70,14 +68,6 @@ def probe_states(world: WorldConfig, cases: int) -> tuple[np.ndarray, np.ndarray
     return tuple(np.concatenate([s[i] for s in states]) for i in range(3))
 
 
-@torch.no_grad()
-def action_scores(policy: GreedyPolicy, probes: tuple[np.ndarray, ...]) -> np.ndarray:
-    """The policy's per-action scores (logits for DSAC) in every probe state, (S, A)."""
-    feats = robot_centric(*probes, policy.unicycle)
-    scores, _ = policy.network(*(torch.from_numpy(x) for x in feats))
-    return scores.numpy()
-
-
 def snapshots(folder: Path) -> list[Path]:
     """The validation snapshots of a run folder, in episode order."""
     paths = sorted((folder / SNAPSHOTS).glob("episode-*.pt"))
@@ -101,7 +91,7 @@ def flip_table(paths: list[Path], cases: int = 100) -> list[dict[str, float]]:
             raise ValueError(f"{path} is not a policy over the 81 actions (DSAC, DQN, A2C)")
         if probes is None:
             probes = probe_states(world, cases)
-        scores.append(action_scores(policy, probes))
+        scores.append(policy.network_outputs(*probes)[0].cpu().numpy())  # logits for DSAC
         episodes.append(int(policy.metadata["episodes_trained"]))  # the model file's info
         success.append(float(policy.metadata.get("success_rate", math.nan)))
     greedy = [s.argmax(axis=1) for s in scores]
