@@ -9,12 +9,14 @@ seconds, hours per 10k episodes at this stage of training, and the speed-up. Ear
 long (random actions, time-outs), so hours per 10k episodes here are an upper bound for a whole
 run; the speed-up is what this measures.
 
-    python benchmarks/bench_train.py --resume-from runs/lsa_dsac_ent05-s0 [--episodes 100]
+    python benchmarks/bench_train.py --resume-from runs/lsa_dsac_ent05-s0 [RUN ...] [--episodes 100]
 
-instead continues a trained run from its checkpoint (in a temporary copy) for ``--episodes`` more
-episodes with the run's own config and the two-thread update, and prints the training time per
-environment step and per 10k episodes at that stage, where the policy reaches the goal and
-episodes are short.
+instead continues each trained run from its checkpoint (in a temporary copy) for ``--episodes``
+more episodes with the run's own config (DSAC with the two-thread update), one run after the
+other, and prints one row per run: the training time per environment step and per 10k episodes
+at that stage, where the policy reaches the goal and episodes are short, and its ratio to the
+first run's. Runs of different algorithms timed back to back on the same machine give a
+training-hours column that compares (the paper's table VII).
 """
 
 from __future__ import annotations
@@ -43,11 +45,15 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=40)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
-        "--resume-from", type=Path, help="run folder whose checkpoint to continue (see above)"
+        "--resume-from",
+        type=Path,
+        nargs="+",
+        metavar="RUN",
+        help="run folders whose checkpoints to continue, one after the other (see above)",
     )
     args = parser.parse_args()
     if args.resume_from is not None:
-        time_trained_run(args.resume_from, args.episodes)
+        time_trained_runs(args.resume_from, args.episodes)
         return
 
     base = load_config(args.config)
@@ -97,18 +103,42 @@ def main() -> None:
         )
 
 
-def time_trained_run(source: Path, episodes: int) -> None:
-    """Continue ``source``'s checkpoint for ``episodes`` episodes; print the time per step."""
-    if not (source / "checkpoint.pt").is_file():
-        raise SystemExit(f"{source} has no checkpoint.pt; pass a folder made by crowdplan train")
-    # the presets' two-thread update, and no validation inside the timed stretch (both may
-    # change on resume)
-    config = load_config(source / "config.yaml")
-    config = dataclasses.replace(
-        config,
-        val_interval=10**9,
-        algo_config=dataclasses.replace(config.algo_config, parallel_update=True),
+def time_trained_runs(sources: list[Path], episodes: int) -> None:
+    """Continue each run's checkpoint for ``episodes`` episodes; print one row per run."""
+    for source in sources:
+        if not (source / "checkpoint.pt").is_file():
+            raise SystemExit(f"{source} has no checkpoint.pt; pass folders made by crowdplan train")
+    print(f"torch {torch.__version__}, {episodes} episodes per run, one run at a time\n")
+    print(
+        "| run | algo | continued from episode | episodes | env steps per episode | "
+        "ms per env step | train s | h / 10k episodes | ratio to first |"
     )
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
+    first_hours = None
+    for source in sources:
+        start, done, steps, seconds, algo = time_trained_run(source, episodes)
+        hours = seconds / done * 10000 / 3600
+        first_hours = first_hours or hours
+        print(
+            f"| {source.name} | {algo} | {start} | {done} | {steps / done:.1f} | "
+            f"{seconds / steps * 1e3:.2f} | {seconds:.1f} | {hours:.2f} | "
+            f"{hours / first_hours:.2f}x |",
+            flush=True,
+        )
+
+
+def time_trained_run(source: Path, episodes: int) -> tuple[int, int, int, float, str]:
+    """Continue ``source``'s checkpoint for ``episodes`` episodes in a temporary copy.
+
+    Returns (episode it continued from, episodes done, env steps, train seconds, algorithm).
+    """
+    # no validation inside the timed stretch, and DSAC's two-thread update as in the presets
+    # (both may change on resume)
+    config = load_config(source / "config.yaml")
+    config = dataclasses.replace(config, val_interval=10**9)
+    if hasattr(config.algo_config, "parallel_update"):
+        params = dataclasses.replace(config.algo_config, parallel_update=True)
+        config = dataclasses.replace(config, algo_config=params)
     torch.set_num_threads(config.torch_threads)
     with tempfile.TemporaryDirectory() as tmp:
         warm = Trainer(config, Path(tmp) / "warm", progress=False)
@@ -122,20 +152,13 @@ def time_trained_run(source: Path, episodes: int) -> None:
         start_seconds = trainer.train_seconds
         trainer.config = dataclasses.replace(config, episodes=start_episodes + episodes)
         trainer.run()
-        seconds = trainer.train_seconds - start_seconds
-        done = len(trainer.episodes) - start_episodes
-        steps = trainer.env_steps - start_steps
-    print(
-        f"torch {torch.__version__}, threads={config.torch_threads}, run={source} "
-        f"(continued from episode {start_episodes}), "
-        f"parallel_update={config.algo_config.parallel_update}\n"
-    )
-    print("| episodes | env steps per episode | ms per env step | train s | h / 10k episodes |")
-    print("|---:|---:|---:|---:|---:|")
-    print(
-        f"| {done} | {steps / done:.1f} | {seconds / steps * 1e3:.2f} | {seconds:.1f} | "
-        f"{seconds / done * 10000 / 3600:.2f} |"
-    )
+        return (
+            start_episodes,
+            len(trainer.episodes) - start_episodes,
+            trainer.env_steps - start_steps,
+            trainer.train_seconds - start_seconds,
+            config.algo,
+        )
 
 
 if __name__ == "__main__":

@@ -59,16 +59,23 @@ def test_bench_train_quick(tmp_path):
     assert "| serial | 4 |" in result.stdout and "| two threads | 4 |" in result.stdout
 
 
-def test_bench_train_resume_from_a_run(tmp_path):
-    config = tmp_path / "tiny.yaml"
-    config.write_text(TINY_TRAIN_YAML + "episodes: 2\ntest_episodes: 0\nval_episodes: 2\n")
-    run = tmp_path / "run"
-    train = ["-m", "crowdplan.cli", "train", "--config", str(config), "--out", str(run)]
-    subprocess.run([sys.executable, *train, "--no-progress"], check=True, timeout=300)
-    result = _run_bench("bench_train.py", "--resume-from", str(run), "--episodes", "2")
-    assert "continued from episode 2" in result.stdout
-    row = result.stdout.strip().splitlines()[-1]
-    assert row.startswith("| 2 |") and float(row.split("|")[-2]) > 0  # h / 10k episodes
+def test_bench_train_resume_from_runs_of_two_algorithms(tmp_path):
+    tiny_a2c = "name: tiny\nalgo: a2c\nnum_envs: 2\nworld: {humans: 3, time_limit: 4.0}\n"
+    runs = []
+    for algo, yaml_text in (("dsac", TINY_TRAIN_YAML), ("a2c", tiny_a2c)):
+        config = tmp_path / f"{algo}.yaml"
+        config.write_text(yaml_text + "episodes: 2\ntest_episodes: 0\nval_episodes: 2\n")
+        run = tmp_path / algo
+        train = ["-m", "crowdplan.cli", "train", "--config", str(config), "--out", str(run)]
+        subprocess.run([sys.executable, *train, "--no-progress"], check=True, timeout=300)
+        runs.append(str(run))
+    result = _run_bench("bench_train.py", "--resume-from", *runs, "--episodes", "2")
+    rows = result.stdout.strip().splitlines()[-2:]
+    for row, algo in zip(rows, ("dsac", "a2c"), strict=True):
+        cells = [cell.strip() for cell in row.strip("|").split("|")]
+        assert cells[:4] == [algo, algo, "2", "2"]  # run, algo, continued from, episodes
+        assert float(cells[-2]) > 0 and float(cells[-1].rstrip("x")) > 0  # h / 10k, ratio
+    assert rows[0].endswith("| 1.00x |")
 
 
 def test_bench_value_update_quick():

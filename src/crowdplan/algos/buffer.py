@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
+
+if TYPE_CHECKING:
+    from crowdplan.algos.base import Transitions
 
 ROBOT_DIM = 6
 HUMAN_DIM = 7
@@ -102,6 +106,19 @@ class ReplayBuffer:
         self.pos = (self.pos + n) % self.capacity
         self.size = min(self.size + n, self.capacity)
         self.added += n
+
+    def add_step(
+        self, obs: Sequence[np.ndarray], step: Transitions, next_obs: Sequence[np.ndarray]
+    ) -> None:
+        """Store one vector-env step: ``obs`` and ``next_obs`` are (robot, humans, mask) feature
+        arrays of ``step.obs`` and ``step.next_obs``, ``step`` a :class:`Transitions`."""
+        self.add_batch(
+            *obs,
+            step.actions,
+            step.rewards.astype(np.float32),
+            *next_obs,
+            step.terminated.astype(np.float32),
+        )
 
     def recent_slots(self, count: int) -> np.ndarray:
         """Slots of the ``count`` most recently added transitions (all slots when ``count`` is

@@ -138,14 +138,7 @@ class DQNAgent:
         feats = self._features
         if feats is None:
             feats = observation_features(step.obs, self.unicycle)
-        nxt = observation_features(step.next_obs, self.unicycle)
-        self.buffer.add_batch(
-            *feats,
-            step.actions,
-            step.rewards.astype(np.float32),
-            *nxt,
-            step.terminated.astype(np.float32),
-        )
+        self.buffer.add_step(feats, step, observation_features(step.next_obs, self.unicycle))
         self._features = None
         if len(self.buffer) >= self.params.learning_starts:
             self.update_credit += len(step.actions) * self.params.updates_per_step

@@ -144,18 +144,7 @@ class DSACAgent:
         feats = self._features
         if feats is None:
             feats = observation_features(step.obs, self.unicycle)
-        next_feats = observation_features(step.next_obs, self.unicycle)
-        self.buffer.add_batch(
-            feats.robot,
-            feats.humans,
-            feats.mask,
-            step.actions,
-            step.rewards.astype(np.float32),
-            next_feats.robot,
-            next_feats.humans,
-            next_feats.mask,
-            step.terminated.astype(np.float32),
-        )
+        self.buffer.add_step(feats, step, observation_features(step.next_obs, self.unicycle))
         self._features = None
         self.env_steps += len(step.actions)
         if len(self.buffer) >= self.params.learning_starts:

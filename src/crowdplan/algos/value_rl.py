@@ -233,12 +233,8 @@ class ValueRLAgent:
         return actions
 
     def observe(self, step: Transitions) -> None:
-        self.buffer.add_batch(
-            *_features(step.obs, self.unicycle),
-            step.actions,
-            step.rewards.astype(np.float32),
-            *_features(step.next_obs, self.unicycle),
-            step.terminated.astype(np.float32),
+        self.buffer.add_step(
+            _features(step.obs, self.unicycle), step, _features(step.next_obs, self.unicycle)
         )
         finished = int(np.count_nonzero(step.terminated | step.truncated))
         self.batch_credit += finished * self.params.train_batches
