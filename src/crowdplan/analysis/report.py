@@ -90,8 +90,10 @@ TRAINING_HEADER = [
     "last val reward",
     "best val reward",
     "min to val success >= 0.99",
+    "lowest val success after the first >= 0.95 (episode)",
 ]
 FIRST_SUCCESS = 0.99  # the validation success whose first arrival the training table times
+STABLE_FROM = 0.95  # after the first validation at this success, the table gives the lowest one
 
 
 def minutes_to_success(run: Path, meta: dict, validations: list[dict[str, str]]) -> float | None:
@@ -115,6 +117,17 @@ def minutes_to_success(run: Path, meta: dict, validations: list[dict[str, str]])
     return (float(meta.get("pretrain_seconds") or 0.0) + seconds) / 60.0
 
 
+def lowest_success_after(validations: list[dict[str, str]]) -> tuple[float, int] | None:
+    """The lowest validation success from the first validation with success >=
+    :data:`STABLE_FROM` on (that one included), and the episode of that first validation; None
+    if no validation got there."""
+    successes = [(int(r["episode"]), float(r["success_rate"])) for r in validations]
+    first = next((i for i, (_, success) in enumerate(successes) if success >= STABLE_FROM), None)
+    if first is None:
+        return None
+    return min(success for _, success in successes[first:]), successes[first][0]
+
+
 def read_run(run: Path) -> tuple[dict, list[dict[str, str]]]:
     """A training run folder's ``meta.json`` and the rows of its ``validation.csv``."""
     meta = json.loads((run / "meta.json").read_text())
@@ -130,6 +143,7 @@ def training_rows(run_dirs: list[Path]) -> list[list[str]]:
         last = validations[-1] if validations else {}
         best = max((float(r["mean_reward"]) for r in validations), default=float("nan"))
         minutes = minutes_to_success(run, meta, validations)
+        stability = lowest_success_after(validations)
         rows.append(
             [
                 str(run),
@@ -141,6 +155,7 @@ def training_rows(run_dirs: list[Path]) -> list[list[str]]:
                 f"{float(last.get('mean_reward', 'nan')):.3f}",
                 f"{best:.3f}",
                 "never" if minutes is None else f"{minutes:.0f}",
+                "never" if stability is None else f"{stability[0]:.2f} ({stability[1]})",
             ]
         )
     return rows
