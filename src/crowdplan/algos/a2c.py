@@ -32,8 +32,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from crowdplan.algos.base import Observation, Transitions
-from crowdplan.algos.dsac_agent import observation_features
+from crowdplan.algos.base import Observation, Transitions, observation_features
 from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
 from crowdplan.models import GreedyPolicy, load_weights, require_format
 from crowdplan.nets.heads import PolicyHead, ValueHead

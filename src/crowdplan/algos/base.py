@@ -16,11 +16,17 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from crowdplan.features import Features, robot_centric
 from crowdplan.policy import Policy
 
 Observation = dict[str, np.ndarray]
 """Raw batched observation of E environments: ``robot`` (E, 9), ``humans`` (E, N, 5), ``mask``
 (E, N), as :class:`crowdplan.sim.env.CrowdNavVectorEnv` returns it."""
+
+
+def observation_features(obs: Observation, unicycle: bool) -> Features:
+    """Robot-centric features of a raw batched observation."""
+    return robot_centric(obs["robot"], obs["humans"], obs["mask"].astype(bool), unicycle)
 
 
 @dataclass

@@ -11,20 +11,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from crowdplan.algos.base import Observation, Transitions
+from crowdplan.algos.base import Observation, Transitions, observation_features
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.dsac import DSAC
 from crowdplan.config import to_dict
-from crowdplan.features import Features, robot_centric
+from crowdplan.features import Features
 from crowdplan.models import MODEL_FORMAT, DSACPolicy, model_payload
 
 if TYPE_CHECKING:
     from crowdplan.training.config import TrainConfig
-
-
-def observation_features(obs: Observation, unicycle: bool) -> Features:
-    """Robot-centric features of a raw batched observation."""
-    return robot_centric(obs["robot"], obs["humans"], obs["mask"].astype(bool), unicycle)
 
 
 def initial_actor_state(config: TrainConfig) -> dict[str, torch.Tensor]:

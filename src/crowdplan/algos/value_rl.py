@@ -34,11 +34,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from crowdplan.algos.base import Observation, Transitions
+from crowdplan.algos.base import Observation, Transitions, observation_features
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.imitation import collect_demonstrations, demonstration_seeds, fit_values
 from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
-from crowdplan.features import Features, robot_centric
+from crowdplan.features import robot_centric
 from crowdplan.models import load_weights, require_format
 from crowdplan.nets.value import VALUE_NETWORKS, ValueNetwork, make_value_network
 from crowdplan.policy import PolicyOutput
@@ -155,10 +155,6 @@ class ValuePolicy:
         return PolicyOutput(actions, scores)
 
 
-def _features(obs: Observation, unicycle: bool) -> Features:
-    return robot_centric(obs["robot"], obs["humans"], obs["mask"].astype(bool), unicycle)
-
-
 class ValueRLAgent:
     """The training-loop agent of CADRL, LSTM-RL and SARL (see the module docstring)."""
 
@@ -234,7 +230,9 @@ class ValueRLAgent:
 
     def observe(self, step: Transitions) -> None:
         self.buffer.add_step(
-            _features(step.obs, self.unicycle), step, _features(step.next_obs, self.unicycle)
+            observation_features(step.obs, self.unicycle),
+            step,
+            observation_features(step.next_obs, self.unicycle),
         )
         finished = int(np.count_nonzero(step.terminated | step.truncated))
         self.batch_credit += finished * self.params.train_batches
