@@ -59,7 +59,8 @@ class InlineBackend:
 
 
 def _clockless(result: dict) -> dict:
-    return {k: v for k, v in result.items() if k != "hours_per_10k_episodes"}
+    clock = ("hours_per_10k_episodes", "minutes_to_val_success_0.99")
+    return {k: v for k, v in result.items() if k not in clock}
 
 
 # ---------------------------------------------------------------------- parsing
@@ -216,7 +217,15 @@ def test_sweep_runs_skips_finished_and_resumes_stopped_trials(tmp_path):
     assert again.jobs == []
     summary = json.loads((folder.root / "summary.json").read_text())
     assert [row["setting"] for row in summary["settings"]] == ["dsac.lr=0.0001", "dsac.lr=0.0003"]
-    assert "| dsac.lr=0.0001 | 1 |" in (folder.root / "summary.md").read_text()
+    table = (folder.root / "summary.md").read_text()
+    assert "| dsac.lr=0.0001 | 1 |" in table
+    # one row per trial: episodes, test or validation metrics, then its training stability
+    (row,) = [line for line in table.splitlines() if line.startswith("| dsac.lr=0.0001-s0 |")]
+    cells = [cell.strip() for cell in row.strip("|").split("|")]
+    first_095 = results["dsac.lr=0.0001-s0"]["first_val_success_0.95_episode"]
+    assert cells[:3] == ["dsac.lr=0.0001-s0", "0", "4"]
+    assert cells[6] == ("never" if first_095 is None else str(first_095))
+    assert cells[-1].startswith("last validation (episode 4)")
 
 
 def test_summary_gives_mean_and_interval_across_seeds():

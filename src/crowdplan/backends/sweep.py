@@ -7,8 +7,9 @@ A sweep folder holds:
     runs/<trial>/           each trial's run folder (as `crowdplan train --out` makes it)
     logs/<trial>.log        each trial's output, appended over its attempts
     results/<trial>.json    written when a trial finished: its final metrics
-    summary.json, summary.md   mean and 95% interval across seeds of each setting (summary.json
-                            also: trials run by the last invocation and its wall-clock seconds)
+    summary.json, summary.md   mean and 95% interval across seeds of each setting, and each
+                            finished trial's metrics and training stability (summary.json also:
+                            trials run by the last invocation and its wall-clock seconds)
 
 Re-running the same command skips trials with a result, resumes those with a checkpoint and
 starts the others afresh.
@@ -345,6 +346,22 @@ def trial_result(name: str, run_dir: Path) -> dict[str, Any]:
         "hours_per_10k_episodes": meta["hours_per_10k_episodes"],
         "source": source,
         **metrics,
+        **training_stability(run_dir),
+    }
+
+
+def training_stability(run_dir: Path) -> dict[str, Any]:
+    """From a run's validation log: minutes to the first validation success of 0.99, the episode
+    of the first of 0.95 and the lowest validation success from there on (None where it never got
+    there; ``crowdplan.analysis.report``, docs/training.md section 7)."""
+    from crowdplan.analysis.report import lowest_success_after, minutes_to_success, read_run
+
+    meta, validations = read_run(run_dir)
+    lowest = lowest_success_after(validations)
+    return {
+        "minutes_to_val_success_0.99": minutes_to_success(run_dir, meta, validations),
+        "first_val_success_0.95_episode": lowest[1] if lowest else None,
+        "lowest_val_success_after_0.95": lowest[0] if lowest else None,
     }
 
 
@@ -436,4 +453,43 @@ def format_summary(summary: dict[str, Any]) -> str:
             f" ({len(row['failed'])} failed)" if row["failed"] else ""
         )
         lines.append(f"| {row['setting']} | {seeds} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n\n" + format_trials(summary["trials"])
+
+
+TRIAL_COLUMNS = (
+    "episodes",
+    "success_rate",
+    "time_to_goal",
+    "minutes_to_val_success_0.99",
+    "first_val_success_0.95_episode",
+    "lowest_val_success_after_0.95",
+)
+
+
+def format_trials(trials: list[dict[str, Any] | None]) -> str:
+    """Markdown table: one row per finished trial (per seed), with its training stability."""
+    lines = [
+        "| trial | seed | " + " | ".join(TRIAL_COLUMNS) + " | from |",
+        "|---|---:|" + "---:|" * len(TRIAL_COLUMNS) + "---|",
+    ]
+    for trial in trials:
+        if trial is None or "error" in trial:
+            continue
+        cells = [_trial_cell(trial, column) for column in TRIAL_COLUMNS]
+        lines.append(
+            f"| {trial['trial']} | {trial['seed']} | "
+            + " | ".join(cells)
+            + f" | {trial['source']} |"
+        )
     return "\n".join(lines) + "\n"
+
+
+def _trial_cell(trial: dict[str, Any], column: str) -> str:
+    if column not in trial:
+        return "-"  # a result written by a version without this column
+    value = trial[column]
+    if value is None:
+        return "never"
+    if isinstance(value, int):
+        return str(value)
+    return f"{value:.0f}" if column.startswith("minutes") else format_value(value)
