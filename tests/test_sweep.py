@@ -228,6 +228,21 @@ def test_sweep_runs_skips_finished_and_resumes_stopped_trials(tmp_path):
     assert cells[-1].startswith("last validation (episode 4)")
 
 
+def test_a_trial_trained_past_its_budget_without_a_result_is_finished_not_refused(tmp_path):
+    # a trial whose last batch of episodes ended past its budget (2 envs finish 6 episodes of 5)
+    # and that stopped before writing its result: resuming must not ask for fewer episodes
+    trials = expand(BASE, [], [0], 1)
+    folder = SweepFolder(tmp_path / "sweep")
+    with folder.lock():
+        folder.prepare(BASE, 1, trials)
+    name = trials[0].name
+    argv = ["train", "--config", str(folder.config(name)), "--out", str(folder.run(name))]
+    assert main([*argv, "--episodes", "5", "--no-progress"]) == 0  # the config says 4
+    summary = run_sweep(folder.root, BASE, trials, 1, InlineBackend, report=lambda _: None)
+    (result,) = summary["trials"]
+    assert "error" not in result and result["episodes"] >= 5
+
+
 def test_summary_gives_mean_and_interval_across_seeds():
     trials = expand(BASE, [], [0, 1, 2], 1)
     values = [0.8, 0.9, 1.0]

@@ -300,6 +300,9 @@ def run_trial(root: str, name: str) -> dict[str, Any]:
     run_dir = folder.run(name)
     if (run_dir / "checkpoint.pt").is_file():
         budget = yaml.safe_load(folder.config(name).read_text())["episodes"]
+        meta = run_dir / "meta.json"
+        if meta.is_file():  # the last batch of episodes may end past the budget: never shrink it
+            budget = max(budget, json.loads(meta.read_text())["episodes"])
         argv = ["train", "--out", str(run_dir), "--resume", "--episodes", str(budget)]
         argv.append("--no-progress")
     else:
