@@ -16,7 +16,9 @@ more episodes with the run's own config (DSAC with the two-thread update), one r
 other, and prints one row per run: the training time per environment step and per 10k episodes
 at that stage, where the policy reaches the goal and episodes are short, and its ratio to the
 first run's. Runs of different algorithms timed back to back on the same machine give a
-training-hours column that compares (the paper's table VII).
+training-hours column that compares (the paper's table VII). ``--torch-threads N`` runs every
+continued run with N torch threads instead of its own (the numbers of a real run could change
+with the thread count, so a real ``--resume`` keeps them; here only the time is wanted).
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from crowdplan.training import Trainer, load_config
+from crowdplan.training import TrainConfig, Trainer, load_config
 
 
 def train(config, run_dir: Path) -> Trainer:
@@ -51,9 +53,14 @@ def main() -> None:
         metavar="RUN",
         help="run folders whose checkpoints to continue, one after the other (see above)",
     )
+    parser.add_argument(
+        "--torch-threads",
+        type=int,
+        help="with --resume-from: torch threads of every continued run (default: each run's own)",
+    )
     args = parser.parse_args()
     if args.resume_from is not None:
-        time_trained_runs(args.resume_from, args.episodes)
+        time_trained_runs(args.resume_from, args.episodes, args.torch_threads)
         return
 
     base = load_config(args.config)
@@ -103,34 +110,37 @@ def main() -> None:
         )
 
 
-def time_trained_runs(sources: list[Path], episodes: int) -> None:
+def time_trained_runs(sources: list[Path], episodes: int, threads: int | None = None) -> None:
     """Continue each run's checkpoint for ``episodes`` episodes; print one row per run."""
     for source in sources:
         if not (source / "checkpoint.pt").is_file():
             raise SystemExit(f"{source} has no checkpoint.pt; pass folders made by crowdplan train")
     print(f"torch {torch.__version__}, {episodes} episodes per run, one run at a time\n")
     print(
-        "| run | algo | continued from episode | episodes | env steps per episode | "
-        "ms per env step | train s | h / 10k episodes | ratio to first |"
+        "| run | algo | torch threads | continued from episode | episodes | "
+        "env steps per episode | ms per env step | train s | h / 10k episodes | ratio to first |"
     )
-    print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     first_hours = None
     for source in sources:
-        start, done, steps, seconds, algo = time_trained_run(source, episodes)
+        start, done, steps, seconds, config = time_trained_run(source, episodes, threads)
         hours = seconds / done * 10000 / 3600
         first_hours = first_hours or hours
         print(
-            f"| {source.name} | {algo} | {start} | {done} | {steps / done:.1f} | "
-            f"{seconds / steps * 1e3:.2f} | {seconds:.1f} | {hours:.2f} | "
+            f"| {source.name} | {config.algo} | {config.torch_threads} | {start} | {done} | "
+            f"{steps / done:.1f} | {seconds / steps * 1e3:.2f} | {seconds:.1f} | {hours:.2f} | "
             f"{hours / first_hours:.2f}x |",
             flush=True,
         )
 
 
-def time_trained_run(source: Path, episodes: int) -> tuple[int, int, int, float, str]:
-    """Continue ``source``'s checkpoint for ``episodes`` episodes in a temporary copy.
+def time_trained_run(
+    source: Path, episodes: int, threads: int | None
+) -> tuple[int, int, int, float, TrainConfig]:
+    """Continue ``source``'s checkpoint for ``episodes`` episodes in a temporary copy, with
+    ``threads`` torch threads (None: the run's own).
 
-    Returns (episode it continued from, episodes done, env steps, train seconds, algorithm).
+    Returns (episode it continued from, episodes done, env steps, train seconds, config used).
     """
     # no validation inside the timed stretch, and DSAC's two-thread update as in the presets
     # (both may change on resume)
@@ -150,14 +160,20 @@ def time_trained_run(source: Path, episodes: int) -> tuple[int, int, int, float,
         trainer.restore(run_dir / "checkpoint.pt")
         start_episodes, start_steps = len(trainer.episodes), trainer.env_steps
         start_seconds = trainer.train_seconds
-        trainer.config = dataclasses.replace(config, episodes=start_episodes + episodes)
+        # torch threads may not change on a real resume (they can change the numbers); here only
+        # the time matters
+        trainer.config = config = dataclasses.replace(
+            config,
+            episodes=start_episodes + episodes,
+            torch_threads=threads or config.torch_threads,
+        )
         trainer.run()
         return (
             start_episodes,
             len(trainer.episodes) - start_episodes,
             trainer.env_steps - start_steps,
             trainer.train_seconds - start_seconds,
-            config.algo,
+            config,
         )
 
 

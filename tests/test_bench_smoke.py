@@ -69,11 +69,13 @@ def test_bench_train_resume_from_runs_of_two_algorithms(tmp_path):
         train = ["-m", "crowdplan.cli", "train", "--config", str(config), "--out", str(run)]
         subprocess.run([sys.executable, *train, "--no-progress"], check=True, timeout=300)
         runs.append(str(run))
-    result = _run_bench("bench_train.py", "--resume-from", *runs, "--episodes", "2")
+    args = ["--episodes", "2", "--torch-threads", "2"]
+    result = _run_bench("bench_train.py", "--resume-from", *runs, *args)
     rows = result.stdout.strip().splitlines()[-2:]
     for row, algo in zip(rows, ("dsac", "a2c"), strict=True):
         cells = [cell.strip() for cell in row.strip("|").split("|")]
-        assert cells[:4] == [algo, algo, "2", "2"]  # run, algo, continued from, episodes
+        # run, algo, torch threads, continued from, episodes
+        assert cells[:5] == [algo, algo, "2", "2", "2"]
         assert float(cells[-2]) > 0 and float(cells[-1].rstrip("x")) > 0  # h / 10k, ratio
     assert rows[0].endswith("| 1.00x |")
 
