@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from crowdplan.deploy.manifest import MANIFEST_FILE
@@ -143,10 +145,11 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         if args.split == "val"
         else evaluation.test_seeds(args.episodes)
     )
-    if not args.log_stops:
-        logging.getLogger("crowdplan.deploy").setLevel(logging.ERROR)
     start = time.perf_counter()
-    records, stats = run_deployment(policy, config, seeds, sensor, runtime_config(args, config.dt))
+    with contextlib.nullcontext() if args.log_stops else _quiet_safety_stops():
+        records, stats = run_deployment(
+            policy, config, seeds, sensor, runtime_config(args, config.dt)
+        )
     elapsed = time.perf_counter() - start
     summary = evaluation.summarize(records)
     title = (
@@ -183,3 +186,16 @@ def cmd_ros2(args: argparse.Namespace) -> int:
     from crowdplan.deploy.ros2 import run_node
 
     return run_node(args)
+
+
+@contextlib.contextmanager
+def _quiet_safety_stops() -> Iterator[None]:
+    """Errors only from the runtime's log for the duration; its level is restored after, so that
+    a caller in the same process keeps its own logging."""
+    logger = logging.getLogger("crowdplan.deploy")
+    previous = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(previous)
