@@ -288,11 +288,13 @@ def _die_once(flag: str, x: int) -> int:
 def test_sigterm_stops_the_sweep_and_its_running_trial_with_a_checkpoint(tmp_path, target):
     # A scheduler's or `kill`'s SIGTERM reaches one process only (not the process group, as
     # Ctrl-C does). Sent to the sweep, the trial in the pool's worker must not go on training on
-    # its own; sent to the worker, the sweep must stop cleanly, not with a traceback.
+    # its own; sent to the worker, the sweep must stop cleanly, not with a traceback. Either
+    # way the second trial, queued in the pool behind the first, must not start.
     config = tmp_path / "long.yaml"
     config.write_text(yaml.safe_dump({**TINY, "episodes": 100_000}))
     out = tmp_path / "sweep"
     argv = ["sweep", "--config", str(config), "--out", str(out), "--workers", "1"]
+    argv += ["--seeds", "0-1"]
     proc = subprocess.Popen(
         [sys.executable, "-m", "crowdplan.cli", *argv],
         stdout=subprocess.PIPE,
@@ -321,6 +323,7 @@ def test_sigterm_stops_the_sweep_and_its_running_trial_with_a_checkpoint(tmp_pat
             os.kill(worker, 0)
         assert "stopped at episode" in log.read_text()
         assert (out / "runs" / "tiny-s0" / "checkpoint.pt").is_file()
+        assert not (out / "logs" / "tiny-s1.log").exists()
     finally:  # nothing left running if the test fails
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)

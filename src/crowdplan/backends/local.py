@@ -1,9 +1,11 @@
 """Jobs on a pool of local worker processes (spawned, so each starts with clean state).
 
-Stopping: a map stopped by an interrupt or an error sends SIGTERM to its workers, and a sweep
-trial then saves its checkpoint and exits. A worker takes SIGTERM and SIGINT as a fresh Python
-process does only while it runs a job; idle or passing a result back, it notes them instead,
-since dying there could leave the pool's result queue locked and the map waiting forever.
+Stopping: a map stopped by an interrupt or an error sets the pool's stop event and sends
+SIGTERM to its workers; a sweep trial then saves its checkpoint and exits, and a job that starts
+afterwards (one the pool had already queued, picked up by a replacement worker) is refused. A
+worker takes SIGTERM and SIGINT as a fresh Python process does only while it runs a job; idle or
+passing a result back, it notes them instead, since dying there could leave the pool's result
+queue locked and the map waiting forever.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from crowdplan.backends import JobInterrupted, run_with_threads
 POOL_RESTARTS = 3
 STOP_SIGNALS = {signal.SIGTERM: signal.SIG_DFL, signal.SIGINT: signal.default_int_handler}
 _stop_noted = False  # in a worker: a stop signal arrived while no job ran
+_stop_event: Any = None  # in a worker: its pool's stop event (set by the map that stops)
 
 
 class LocalBackend:
@@ -38,12 +41,15 @@ class LocalBackend:
         in a new pool (up to ``POOL_RESTARTS`` times)."""
         workers = self.workers or max(1, (os.cpu_count() or 1) // threads)
         pending = dict(enumerate(jobs))
+        context = multiprocessing.get_context("spawn")
         for _ in range(POOL_RESTARTS + 1):
+            stop = context.Event()
             pool = ProcessPoolExecutor(
                 min(workers, max(len(pending), 1)),
-                mp_context=multiprocessing.get_context("spawn"),
+                mp_context=context,
                 max_tasks_per_child=1,
-                initializer=_note_stop_signals,
+                initializer=_start_worker,
+                initargs=(stop,),
             )
             futures: dict[Future, int] = {
                 pool.submit(_run_job, threads, fn, job): index for index, job in pending.items()
@@ -60,6 +66,7 @@ class LocalBackend:
                         del pending[index]
                         yield index, result
             except BaseException:
+                stop.set()
                 _stop_workers()
                 raise
             finally:
@@ -75,8 +82,15 @@ class LocalBackend:
         """Nothing to release: each map shuts its pool down."""
 
 
+def _start_worker(stop: Any) -> None:
+    """Worker initializer: keep the pool's stop event; outside jobs, note stop signals."""
+    global _stop_event
+    _stop_event = stop
+    _note_stop_signals()
+
+
 def _note_stop_signals() -> None:
-    """Worker initializer: outside jobs, a stop signal is noted, not acted on."""
+    """Outside jobs, a stop signal is noted, not acted on."""
     for sig in STOP_SIGNALS:
         signal.signal(sig, _note_stop)
 
@@ -88,9 +102,9 @@ def _note_stop(signum, frame) -> None:
 
 def _run_job(threads: int, fn: Callable[..., Any], job: tuple) -> Any:
     """In a worker: ``fn(*job)`` with the usual signal handling (a training run installs its
-    own); refused if a stop signal came before it started."""
-    if _stop_noted:
-        raise JobInterrupted("a stop signal arrived before the job started")
+    own); refused if a stop signal, or the map's stop, came before it started."""
+    if _stop_noted or (_stop_event is not None and _stop_event.is_set()):
+        raise JobInterrupted("the map was stopped before the job started")
     for sig, handler in STOP_SIGNALS.items():
         signal.signal(sig, handler)
     try:
