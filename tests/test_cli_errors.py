@@ -218,7 +218,14 @@ def test_ctrl_c_during_eval(tmp_path):
     argv = _crowdplan(
         "eval", "--model", "sarl", "--batch-size", "1", "--out", str(tmp_path / "res")
     )
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        argv,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        # a shell's background job inherits SIGINT ignored; Ctrl-C reaches a foreground command
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     first = proc.stderr.readline()  # the first progress line: episodes are running
     assert first.startswith("eval sarl: "), first
     proc.send_signal(signal.SIGINT)
