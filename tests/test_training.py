@@ -72,10 +72,10 @@ def test_run_records_the_commit_it_started_with(tmp_path, monkeypatch):
     assert meta["git"] == "started-with"
 
 
-def test_resume_with_another_validation_interval_and_update_threads_trains_identically(tmp_path):
+def test_resume_with_other_validation_settings_and_update_threads_trains_identically(tmp_path):
     straight = _train(tmp_path, "straight", episodes=8)
     first = _train(tmp_path, "resumed", episodes=3)
-    config = dataclasses.replace(config_from_dict(TINY), episodes=8, val_interval=3)
+    config = dataclasses.replace(config_from_dict(TINY), episodes=8, val_interval=3, val_humans=5)
     config.algo_config = dataclasses.replace(config.algo_config, parallel_update=True)
     resumed = Trainer(config, tmp_path / "resumed", False)
     resumed.restore(tmp_path / "resumed" / "checkpoint.pt")
@@ -84,6 +84,20 @@ def test_resume_with_another_validation_interval_and_update_threads_trains_ident
     # the first leg validated where it ended; then every 3 episodes from there on
     validated = [row["episode"] for row in resumed.validations]
     assert validated[0] == len(first.episodes) and validated[1:] == [6, 8]
+
+
+def test_validation_runs_with_val_humans(tmp_path, monkeypatch):
+    from crowdplan import evaluation
+
+    run_episodes, humans = evaluation.run_episodes, []
+
+    def recording(policy, world, seeds, *args, **kwargs):
+        humans.append(world.humans)
+        return run_episodes(policy, world, seeds, *args, **kwargs)
+
+    monkeypatch.setattr(evaluation, "run_episodes", recording)
+    trainer = _train(tmp_path, "a", episodes=2, val_interval=1, val_episodes=2, val_humans=0)
+    assert humans and set(humans) == {0} and trainer.config.world.humans == 3
 
 
 def test_sigterm_checkpoints_mid_episode_and_resume_is_exact(tmp_path, monkeypatch):
@@ -131,6 +145,8 @@ def test_checkpoint_from_another_encoder_is_refused(tmp_path):
         ({**TINY, "learning_rate": 1}, "unknown key(s) ['learning_rate']"),
         ({**TINY, "dsac": {"gama": 0.9}}, "unknown key(s) ['gama']"),
         ({**TINY, "num_envs": 0}, "num_envs must be >= 1, got 0"),
+        ({**TINY, "val_humans": -1}, "val_humans must be >= 0"),
+        ({**TINY, "val_humans": 5, "encoder": {"name": "raw"}}, "raw encoder's fixed 3 human"),
         ([1, 2], "must be a YAML mapping"),
     ],
 )

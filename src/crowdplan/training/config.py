@@ -32,6 +32,9 @@ class TrainConfig:
         num_envs: environments stepped together; each env step is one transition per env.
         val_interval: episodes between validations on the validation cases.
         val_episodes: validation cases per validation (the validation split has 100).
+        val_humans: humans in the validation worlds (default: the training world's). For a
+            planner judged with more humans than it trains with, e.g. CADRL (1 human in
+            training, 5 in the paper's tests), so that best-model selection sees that world.
         keep_validation_models: also write each validation's greedy policy to
             ``validation_models/episode-NNNNNN.pt`` (for ``crowdplan.analysis.argmax_flips``;
             about 0.4 MB each for LSA-DSAC).
@@ -52,6 +55,7 @@ class TrainConfig:
     num_envs: int = spec(8, low=1)
     val_interval: int = spec(500, low=1)
     val_episodes: int = spec(100, low=1, high=100)
+    val_humans: int | None = None
     keep_validation_models: bool = False
     checkpoint_interval: int = spec(250, low=1)
     log_interval: int = spec(50, low=1)
@@ -67,6 +71,11 @@ class TrainConfig:
         if self.algo_config is None:
             self.algo_config = algo.config_class()
         check_fields(self, "")
+        if self.val_humans is not None and self.val_humans < 0:
+            raise ValueError(
+                f"val_humans must be >= 0 (or left out for the training world's count), "
+                f"got {self.val_humans}"
+            )
         if not isinstance(self.algo_config, algo.config_class):
             raise ValueError(
                 f"algo_config of a {self.algo} run must be a {algo.config_class.__name__}, "
@@ -79,6 +88,13 @@ class TrainConfig:
         params = data.pop("algo_config")
         data[self.algo] = {k: list(v) if isinstance(v, tuple) else v for k, v in params.items()}
         return data
+
+    def validation_world(self) -> WorldConfig:
+        """The world of the validation cases: the training world, with ``val_humans`` humans
+        (a fixed count) when that is set."""
+        if self.val_humans is None:
+            return self.world
+        return dataclasses.replace(self.world, humans=self.val_humans, humans_min=None)
 
 
 def config_from_dict(data: Any) -> TrainConfig:
@@ -103,6 +119,11 @@ def config_from_dict(data: Any) -> TrainConfig:
     config.algo_config = params
     if config.encoder.name == "raw":
         config.encoder = dataclasses.replace(config.encoder, max_humans=config.world.humans)
+        if (config.val_humans or 0) > config.world.humans:
+            raise ValueError(
+                f"val_humans {config.val_humans} exceeds the raw encoder's fixed "
+                f"{config.world.humans} human slots; use an encoder that pools (lsa, sa, aw, rg)"
+            )
     return config
 
 

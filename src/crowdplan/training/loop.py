@@ -156,7 +156,8 @@ class Trainer:
         """Greedy policy on the validation cases; keeps the best model by mean reward."""
         policy = self.agent.policy(self.config.name)
         seeds = evaluation.validation_seeds(self.config.val_episodes)
-        summary = evaluation.summarize(evaluation.run_episodes(policy, self.config.world, seeds))
+        world = self.config.validation_world()
+        summary = evaluation.summarize(evaluation.run_episodes(policy, world, seeds))
         row = {
             "episode": len(self.episodes),
             "env_steps": self.env_steps,
@@ -266,15 +267,16 @@ class Trainer:
     def restore(self, path: Path) -> None:
         """Continue from a checkpoint of the same configuration.
 
-        Only the episode budget, the validation interval, ``keep_validation_models`` and the
-        algorithm's own ``RESUME_MUTABLE`` settings may differ: none of them changes the training
-        trajectory (validation runs its own worlds, greedily, without randomness).
+        Only the episode budget, the validation settings (``val_interval``, ``val_humans``,
+        ``keep_validation_models``) and the algorithm's own ``RESUME_MUTABLE`` settings may
+        differ: none of them changes the training trajectory (validation runs its own worlds,
+        greedily, without randomness).
         """
         state = read_checkpoint(path)
         # normalised through TrainConfig, so options added since the checkpoint take defaults
         saved = config_from_dict(with_legacy_defaults(state["config"])).to_dict()
         current = self.config.to_dict()
-        for key in ("episodes", "val_interval", "keep_validation_models"):
+        for key in ("episodes", "val_interval", "val_humans", "keep_validation_models"):
             saved[key] = current[key]
         algo = self.config.algo
         for key in getattr(type(self.config.algo_config), "RESUME_MUTABLE", ()):
