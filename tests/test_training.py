@@ -100,6 +100,22 @@ def test_validation_runs_with_val_humans(tmp_path, monkeypatch):
     assert humans and set(humans) == {0} and trainer.config.world.humans == 3
 
 
+def test_demonstrations_and_behaviour_cloning_warm_start_resume_exactly(tmp_path):
+    demo = {"demo_episodes": 3, "bc_epochs": 2, "random_steps": 0, "actor_warmup_updates": 8}
+    config = config_from_dict({**TINY, "dsac": {**TINY["dsac"], **demo}})
+    straight = Trainer(config, tmp_path / "straight", progress=False)
+    straight.run()
+    meta = json.loads((tmp_path / "straight" / "meta.json").read_text())
+    assert meta["pretrain"]["demo_transitions"] > 0 and 0 <= meta["pretrain"]["bc_accuracy"] <= 1
+    first = Trainer(dataclasses.replace(config, episodes=3), tmp_path / "resumed", False)
+    first.run()
+    resumed = Trainer(config, tmp_path / "resumed", progress=False)
+    resumed.restore(tmp_path / "resumed" / "checkpoint.pt")
+    resumed.run()
+    assert torch.equal(_weights(straight), _weights(resumed))
+    assert not torch.equal(_weights(straight), _weights(_train(tmp_path, "paper")))
+
+
 def test_sigterm_checkpoints_mid_episode_and_resume_is_exact(tmp_path, monkeypatch):
     straight = _train(tmp_path, "straight", episodes=6)
     config = dataclasses.replace(config_from_dict(TINY), episodes=6)
@@ -146,6 +162,7 @@ def test_checkpoint_from_another_encoder_is_refused(tmp_path):
         ({**TINY, "dsac": {"gama": 0.9}}, "unknown key(s) ['gama']"),
         ({**TINY, "num_envs": 0}, "num_envs must be >= 1, got 0"),
         ({**TINY, "val_humans": -1}, "val_humans must be >= 0"),
+        ({**TINY, "dsac": {"bc_epochs": 5}}, "set dsac.demo_episodes too"),
         ({**TINY, "val_humans": 5, "encoder": {"name": "raw"}}, "raw encoder's fixed 3 human"),
         ([1, 2], "must be a YAML mapping"),
     ],

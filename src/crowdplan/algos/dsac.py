@@ -66,6 +66,15 @@ class DSACConfig:
             world); same encoder and action frame as the run; not together with ``init_model``.
         actor_warmup_updates: updates during which only the critic learns (policy and
             temperature frozen), so that a fresh critic does not undo an initialised policy.
+        demo_episodes: ORCA demonstration episodes (the robot executing the discrete action
+            nearest to ORCA's command, safety space ``demo_safety_space``) stored in the replay
+            buffer before the first environment step (0: none). Not in the paper; a warm start.
+        demo_safety_space: ORCA's extra radius in the demonstrations (CrowdNav's 0.15).
+        bc_epochs: epochs of behaviour cloning of the policy on the demonstrated actions
+            (cross-entropy, Adam at ``bc_lr``) before the first step (0: none); pair it with
+            ``actor_warmup_updates`` so that the critic learns the cloned policy's values before
+            the policy follows the critic.
+        bc_lr: learning rate of behaviour cloning.
 
     Stabilisation options (docs/training.md), all off by default:
         clip_q_targets: clip the soft target ``y`` to the reachable range
@@ -105,6 +114,10 @@ class DSACConfig:
     init_model: str | None = None
     init_networks: str | None = None
     actor_warmup_updates: int = spec(0, low=0)
+    demo_episodes: int = spec(0, low=0)
+    demo_safety_space: float = spec(0.15, low=0.0)
+    bc_epochs: int = spec(0, low=0)
+    bc_lr: float = spec(1e-3, low=0.0, low_open=True)
     clip_q_targets: bool = False
     return_min: float = -2.5
     return_max: float = 1.5
@@ -123,6 +136,10 @@ class DSACConfig:
         if self.init_model is not None and self.init_networks is not None:
             raise ValueError(
                 "dsac.init_model and dsac.init_networks both initialise the actor: give one"
+            )
+        if self.bc_epochs > 0 and self.demo_episodes == 0:
+            raise ValueError(
+                "dsac.bc_epochs clones the demonstrations' actions: set dsac.demo_episodes too"
             )
         if self.return_min >= self.return_max:
             raise ValueError(

@@ -1,4 +1,5 @@
-"""DSAC as a training-loop agent: replay buffer, random warm-up, update-to-data schedule.
+"""DSAC as a training-loop agent: replay buffer, random warm-up, optional ORCA demonstrations
+and behaviour cloning before the first step, update-to-data schedule.
 
 The maths of an update is in :mod:`crowdplan.algos.dsac`; this module only feeds it.
 """
@@ -14,6 +15,7 @@ import torch
 from crowdplan.algos.base import Observation, Transitions, observation_features
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.dsac import DSAC
+from crowdplan.algos.imitation import collect_demonstrations, demonstration_seeds, fit_actions
 from crowdplan.config import to_dict
 from crowdplan.features import Features
 from crowdplan.models import MODEL_FORMAT, DSACPolicy, model_payload
@@ -122,9 +124,31 @@ class DSACAgent:
         self.update_credit = 0.0
         self._features: Features | None = None  # of the observation the last act() saw
 
-    def pretrain(self, log: Any) -> None:
-        """DSAC learns from its own experience only."""
-        return None
+    def pretrain(self, log: Any) -> dict[str, float] | None:
+        """ORCA demonstrations into the replay buffer and behaviour cloning of the policy, when
+        ``demo_episodes`` / ``bc_epochs`` ask for them; by default (the paper) nothing."""
+        p = self.params
+        if p.demo_episodes == 0:
+            return None
+        seeds = demonstration_seeds(p.demo_episodes, self.config.seed)
+        demos = collect_demonstrations(
+            self.config.world, seeds, p.gamma, p.demo_safety_space, discrete=True
+        )
+        self.buffer.add_batch(
+            *demos.states,
+            demos.actions,
+            demos.rewards,
+            *demos.next_states,
+            demos.terminated.astype(np.float32),
+        )
+        stats: dict[str, float] = {"demo_transitions": float(len(demos))}
+        stats |= {f"demo_{k}_rate": v / p.demo_episodes for k, v in sorted(demos.outcomes.items())}
+        if p.bc_epochs > 0:
+            generator = torch.Generator().manual_seed(self.config.seed + 4)
+            stats |= fit_actions(
+                self.core.actor, demos, p.bc_epochs, p.bc_lr, p.batch_size, generator, log
+            )
+        return stats
 
     def act(self, obs: Observation, world: Any) -> np.ndarray:
         self._features = feats = observation_features(obs, self.unicycle)

@@ -1,9 +1,12 @@
-"""Imitation learning of a state-value network from ORCA demonstrations (SPEC section 6).
+"""Imitation learning from ORCA demonstrations (SPEC section 6).
 
 The robot is driven by the ORCA planner (:mod:`crowdplan.algos.orca_planner`, safety space 0.15
 as CrowdNav's demonstrations); every visited state is labelled with its discounted return
 ``G_t = sum_k gamma_step^k r_{t+k}`` to the end of its episode (a timeout ends it too, as in
-CrowdNav), and the value network is regressed on these returns (MSE, SGD with momentum).
+CrowdNav). The value baselines regress their value network on these returns (MSE, SGD with
+momentum, :func:`fit_values`). With ``discrete=True`` the robot executes, at every step, the one
+of the 81 actions nearest to ORCA's command, so that the demonstrations are transitions a
+discrete-action agent could have made (DSAC's warm start, :mod:`crowdplan.algos.dsac_agent`).
 
 Demonstration episodes use their own seeds, ``DEMO_SEED_BASE + 100000 * run_seed + k``, disjoint
 from the test (1000..1499), validation (0..99) and training (2000, 2001, ...) episodes.
@@ -21,6 +24,7 @@ from torch import nn
 from crowdplan.algos.orca_planner import OrcaPlanner
 from crowdplan.config import WorldConfig
 from crowdplan.features import Features, robot_centric
+from crowdplan.sim.actions import every_action_velocity
 from crowdplan.sim.world import OUTCOME_NAMES, RUNNING, World
 
 DEMO_SEED_BASE = 1_000_000
@@ -32,7 +36,8 @@ class Demonstrations:
     """Transitions of the demonstrated episodes, one row per step (features robot-centric).
 
     ``returns`` are the discounted returns from each state; ``terminated`` marks goal or
-    collision (a timeout is not terminal for the transitions handed to a replay buffer).
+    collision (a timeout is not terminal for the transitions handed to a replay buffer);
+    ``actions`` are the executed action indices of discrete demonstrations (else None).
     """
 
     states: Features
@@ -41,6 +46,7 @@ class Demonstrations:
     terminated: np.ndarray
     returns: np.ndarray
     outcomes: dict[str, int]
+    actions: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.rewards)
@@ -63,8 +69,10 @@ def collect_demonstrations(
     gamma_step: float,
     safety_space: float = 0.15,
     batch_size: int = 100,
+    discrete: bool = False,
 ) -> Demonstrations:
-    """Run the ORCA planner on one episode per seed (``batch_size`` at a time)."""
+    """Run the ORCA planner on one episode per seed (``batch_size`` at a time); with
+    ``discrete`` the robot executes the nearest discrete action to each ORCA command."""
     if not seeds:
         raise ValueError("no demonstration episodes: imitation learning needs at least one")
     if config.kinematics != "holonomic":
@@ -73,7 +81,7 @@ def collect_demonstrations(
         )
     planner = OrcaPlanner(config.dt, config.orca, safety_space)
     parts = [
-        _rollout(planner, config, seeds[i : i + batch_size], gamma_step)
+        _rollout(planner, config, seeds[i : i + batch_size], gamma_step, discrete)
         for i in range(0, len(seeds), batch_size)
     ]
     outcomes: dict[str, int] = {}
@@ -91,19 +99,36 @@ def collect_demonstrations(
         terminated=cat(p.terminated for p in parts),
         returns=cat(p.returns for p in parts),
         outcomes=outcomes,
+        actions=cat(p.actions for p in parts) if discrete else None,
     )
 
 
+def nearest_actions(commands: np.ndarray, robot: np.ndarray, config: WorldConfig) -> np.ndarray:
+    """(E,) index of the discrete action whose velocity is closest to each (E, 2) command."""
+    candidates, _ = every_action_velocity(
+        robot, config.kinematics, config.action_frame, config.speed_sampling
+    )
+    return np.argmin(((candidates - commands[:, None, :]) ** 2).sum(axis=2), axis=1)
+
+
 def _rollout(
-    planner: OrcaPlanner, config: WorldConfig, seeds: list[int], gamma_step: float
+    planner: OrcaPlanner,
+    config: WorldConfig,
+    seeds: list[int],
+    gamma_step: float,
+    discrete: bool = False,
 ) -> Demonstrations:
     world = World(config, len(seeds))
     world.reset(seeds)
     active = np.ones(len(seeds), dtype=bool)
     final = np.full(len(seeds), RUNNING)
-    observations, rewards, terminated, alive = [world.observe()], [], [], []
+    observations, rewards, terminated, alive, actions = [world.observe()], [], [], [], []
     while active.any():
-        step = world.step(planner.act(*observations[-1]).actions, active)
+        command = planner.act(*observations[-1]).actions
+        if discrete:
+            command = nearest_actions(command, observations[-1][0], config)
+            actions.append(command)
+        step = world.step(command, active)
         observations.append(world.observe())
         rewards.append(step.reward)  # 0 in environments whose episode has ended
         terminated.append(step.terminated)
@@ -127,6 +152,7 @@ def _rollout(
         terminated=np.array(terminated)[rows],
         returns=returns[rows].astype(np.float32),
         outcomes={str(n): int(c) for n, c in zip(names, counts, strict=True)},
+        actions=np.array(actions)[rows] if discrete else None,
     )
 
 
@@ -165,3 +191,47 @@ def fit_values(
         if log is not None:
             log(f"imitation learning epoch {epoch + 1}/{epochs}: loss {mean_loss:.5f}")
     return mean_loss
+
+
+def fit_actions(
+    actor: nn.Module,
+    demos: Demonstrations,
+    epochs: int,
+    lr: float,
+    batch_size: int,
+    generator: torch.Generator,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, float]:
+    """Behaviour cloning: train ``actor`` (``actor(robot, humans, mask)`` returns the logits
+    first) to pick the demonstrated actions (cross-entropy, Adam, shuffled mini-batches drawn
+    with ``generator``). Returns the last epoch's mean loss and its share of demonstrated
+    actions that are the policy's argmax."""
+    if demos.actions is None:
+        raise ValueError("behaviour cloning needs discrete demonstrations (discrete=True)")
+    if epochs < 1:
+        raise ValueError(f"behaviour cloning needs at least one epoch, got {epochs}")
+    device = next(actor.parameters()).device
+    robot, humans, mask = (torch.from_numpy(x).to(device) for x in demos.states)
+    target = torch.from_numpy(demos.actions).to(device)
+    optimizer = torch.optim.Adam([p for p in actor.parameters() if p.requires_grad], lr=lr)
+    n = len(target)
+    stats = {"bc_loss": float("nan"), "bc_accuracy": float("nan")}
+    for epoch in range(epochs):
+        order = torch.randperm(n, generator=generator).to(device)
+        total_loss, hits = 0.0, 0
+        for start in range(0, n, batch_size):
+            index = order[start : start + batch_size]
+            logits = actor(robot[index], humans[index], mask[index])[0]
+            loss = torch.nn.functional.cross_entropy(logits, target[index])
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            total_loss += float(loss.detach()) * len(index)
+            hits += int((logits.detach().argmax(dim=1) == target[index]).sum())
+        stats = {"bc_loss": total_loss / n, "bc_accuracy": hits / n}
+        if log is not None:
+            log(
+                f"behaviour cloning epoch {epoch + 1}/{epochs}: loss {stats['bc_loss']:.4f}, "
+                f"accuracy {stats['bc_accuracy']:.3f}"
+            )
+    return stats

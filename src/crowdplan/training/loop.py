@@ -95,6 +95,7 @@ class Trainer:
         self.best_val_reward = -math.inf
         self.train_seconds = 0.0
         self.pretrain_seconds: float | None = None
+        self.pretrain_stats: dict[str, float] | None = None
         self._next_log = config.log_interval
         self._next_val = config.val_interval
         self._next_ckpt = config.checkpoint_interval
@@ -230,6 +231,7 @@ class Trainer:
             "env_steps": self.env_steps,
             "updates": getattr(self.agent, "n_updates", None),
             "pretrain_seconds": self.pretrain_seconds,
+            "pretrain": self.pretrain_stats,
             "train_seconds": self.train_seconds,
             "hours_per_10k_episodes": self.train_seconds / max(done, 1) * 10000 / 3600,
             "torch_threads": torch.get_num_threads(),
@@ -254,6 +256,7 @@ class Trainer:
                 "best_val_reward": self.best_val_reward,
                 "train_seconds": self.train_seconds,
                 "pretrain_seconds": self.pretrain_seconds,
+                "pretrain_stats": self.pretrain_stats,
                 "next_log": self._next_log,
                 "next_val": self._next_val,
                 "next_ckpt": self._next_ckpt,
@@ -297,6 +300,7 @@ class Trainer:
         self.best_val_reward = c["best_val_reward"]
         self.train_seconds = c["train_seconds"]
         self.pretrain_seconds = c.get("pretrain_seconds")
+        self.pretrain_stats = c.get("pretrain_stats")
         self._next_log, self._next_val, self._next_ckpt = (
             c["next_log"],
             c["next_val"],
@@ -331,6 +335,7 @@ class Trainer:
                 stats = self.agent.pretrain(self.display.write)
                 self.pretrain_seconds = time.perf_counter() - start
                 if stats is not None:
+                    self.pretrain_stats = stats
                     self.display.write(f"pretraining done: {stats}")
                     self.checkpoint()
             with _stop_requests() as stop:
