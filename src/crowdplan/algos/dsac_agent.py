@@ -134,15 +134,8 @@ class DSACAgent:
         demos = collect_demonstrations(
             self.config.world, seeds, p.gamma, p.demo_safety_space, discrete=True
         )
-        self.buffer.add_batch(
-            *demos.states,
-            demos.actions,
-            demos.rewards,
-            *demos.next_states,
-            demos.terminated.astype(np.float32),
-        )
-        stats: dict[str, float] = {"demo_transitions": float(len(demos))}
-        stats |= {f"demo_{k}_rate": v / p.demo_episodes for k, v in sorted(demos.outcomes.items())}
+        self.buffer.add_batch(*demos.transitions())
+        stats = {"demo_transitions": float(len(demos)), **demos.outcome_rates()}
         if p.bc_epochs > 0:
             generator = torch.Generator().manual_seed(self.config.seed + 4)
             stats |= fit_actions(

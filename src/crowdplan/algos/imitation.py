@@ -51,6 +51,18 @@ class Demonstrations:
     def __len__(self) -> int:
         return len(self.rewards)
 
+    def outcome_rates(self) -> dict[str, float]:
+        """``demo_<outcome>_rate`` of the demonstrated episodes (for a run's statistics)."""
+        episodes = sum(self.outcomes.values())
+        return {f"demo_{k}_rate": v / episodes for k, v in sorted(self.outcomes.items())}
+
+    def transitions(self) -> tuple[np.ndarray, ...]:
+        """The arguments of :meth:`crowdplan.algos.buffer.ReplayBuffer.add_batch`; continuous
+        demonstrations store action 0 (ORCA's commands are not discrete actions)."""
+        actions = self.actions if self.actions is not None else np.zeros(len(self), np.int64)
+        done = self.terminated.astype(np.float32)
+        return (*self.states, actions, self.rewards, *self.next_states, done)
+
 
 def demonstration_seeds(episodes: int, run_seed: int) -> list[int]:
     """Seeds of the demonstration episodes of a run."""

@@ -199,16 +199,8 @@ class ValueRLAgent:
         )
         self.target.load_state_dict(self.net.state_dict())
         self.values_stale = True
-        states, after = demos.states, demos.next_states
-        self.buffer.add_batch(
-            *states,
-            np.zeros(len(demos), dtype=np.int64),  # ORCA's commands are not discrete actions
-            demos.rewards,
-            *after,
-            demos.terminated.astype(np.float32),
-        )
-        rates = {f"demo_{k}_rate": v / p.il_episodes for k, v in sorted(demos.outcomes.items())}
-        return {"demo_states": len(demos), "il_loss": loss, **rates}
+        self.buffer.add_batch(*demos.transitions())
+        return {"demo_states": len(demos), "il_loss": loss, **demos.outcome_rates()}
 
     # ------------------------------------------------------------------ RL
     @property
