@@ -17,8 +17,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-ROBOT_OBS_DIM = 9  # px, py, vx, vy, r, gx, gy, v_pref, theta
-HUMAN_OBS_DIM = 5  # px, py, vx, vy, r
 ROBOT_FEAT_DIM = 6
 HUMAN_FEAT_DIM = 7
 

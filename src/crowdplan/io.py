@@ -54,12 +54,6 @@ def write_jsonl(path: str | Path, rows: Iterable[dict]) -> None:
     atomic_write(path, lambda f: f.writelines(lines))
 
 
-def read_jsonl(path: str | Path) -> list[dict]:
-    """Read a JSON-lines file."""
-    with open(path) as f:
-        return [json.loads(line) for line in f if line.strip()]
-
-
 class OutputError(ValueError):
     """An output path that cannot or must not be written (found before any work is done)."""
 

@@ -30,14 +30,6 @@ from crowdplan.evaluation import Trace
 from crowdplan.social_metrics import gaps
 
 STRATEGIES = ("full-bypass", "partly-bypass", "follow-pass", "wait-pass", "back-pass", "cross")
-SPEED_CLASS = {  # the paper's table IV: how fast each strategy reaches the goal
-    "full-bypass": "fast",
-    "partly-bypass": "fast",
-    "follow-pass": "medium",
-    "wait-pass": "slow",
-    "back-pass": "slow",
-    "cross": "many collisions",
-}
 
 CUT_GAP = 0.3  # m, edge to edge
 MOVING = 0.3  # m/s
