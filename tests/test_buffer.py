@@ -43,7 +43,9 @@ def test_add_and_sample_shapes_and_dtypes():
         "next_humans": (16, 5, 7),
         "next_mask": (16, 5),
         "done": (16,),
+        "behaviour_entropy": (16,),
     }
+    assert not batch["behaviour_entropy"].any()  # not given: 0
     assert batch["mask"].dtype == torch.bool and batch["action"].dtype == torch.int64
     assert batch["robot"].dtype == torch.float32 and batch["done"].dtype == torch.float32
     # fewer humans than slots: padded with zeros and mask False
@@ -53,6 +55,14 @@ def test_add_and_sample_shapes_and_dtypes():
     ids = batch["robot"][:, 0]
     torch.testing.assert_close(batch["reward"], ids * 0.5)
     torch.testing.assert_close(batch["next_robot"][:, 0], ids + 0.25)
+
+
+def test_behaviour_entropy_travels_with_its_transition():
+    buf = ReplayBuffer(capacity=10, max_humans=2, seed=0)
+    rows = transitions(6, 2)
+    buf.add_batch(**rows, behaviour_entropy=rows["reward"] * 2)
+    batch = buf.sample(32)
+    torch.testing.assert_close(batch["behaviour_entropy"], batch["robot"][:, 0])
 
 
 def test_wraparound_overwrites_the_oldest():

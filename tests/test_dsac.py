@@ -100,6 +100,7 @@ def small_batch(n: int = 16, humans: int = 3, seed: int = 0) -> dict[str, torch.
         "next_humans": torch.randn(n, humans, 7, generator=g),
         "next_mask": mask.roll(1, dims=0),
         "done": (torch.rand(n, generator=g) < 0.3).float(),
+        "behaviour_entropy": torch.rand(n, generator=g) * math.log(A),
     }
 
 
@@ -203,6 +204,10 @@ def test_act_deterministic_and_reproducible_sampling():
     again, _ = agent.act(*obs, generator=torch.Generator().manual_seed(5))
     assert torch.equal(first, again)
     assert ((first >= 0) & (first < A)).all()
+    sampled, entropy = agent.sample(*obs, generator=torch.Generator().manual_seed(5))
+    assert torch.equal(sampled, first)  # the training loop's sampler draws what act() draws
+    probs = torch.softmax(logits, dim=1)
+    assert torch.allclose(entropy, -(probs * probs.log()).sum(dim=1), atol=1e-5)
 
 
 def test_same_seed_same_agent_and_global_rng_untouched():

@@ -24,6 +24,9 @@ ALL_ON = {
     "critic_layer_norm": True,
     "target_entropy_start_scale": 0.9,
     "target_entropy_anneal_updates": 3,
+    "average_q": True,
+    "q_clip": 0.05,
+    "entropy_penalty": 0.5,
 }
 
 
@@ -40,6 +43,7 @@ def test_every_option_is_off_by_default():
     assert not config.clip_q_targets and not config.critic_layer_norm
     assert config.alpha_min == 0 and config.alpha_lr == 0 and config.grad_clip_norm == 0
     assert config.target_entropy_anneal_updates == 0
+    assert not config.average_q and config.q_clip == 0 and config.entropy_penalty == 0
     agent = DSAC(config, ENCODER)
     assert not any(isinstance(m, nn.LayerNorm) for m in agent.critic.modules())
 
@@ -74,6 +78,74 @@ def test_q_targets_are_clipped_to_the_reachable_range(monkeypatch):
     assert clipped.max() == pytest.approx(1.0 + entropy_bonus)
     inside = (free > -2.0) & (free < 1.0 + entropy_bonus)
     assert torch.equal(clipped[inside], free[inside])  # targets in range are untouched
+
+
+@pytest.mark.parametrize("average_q", [False, True])
+def test_soft_target_uses_the_minimum_or_the_mean_of_the_twin_critics(monkeypatch, average_q):
+    batch = small_batch(seed=5)
+    agent = DSAC(DSACConfig(average_q=average_q), ENCODER, seed=2)
+    next_obs = (batch["next_robot"], batch["next_humans"], batch["next_mask"])
+    with torch.no_grad():
+        q1, q2 = agent.critic_target(*next_obs)
+        log_pi = torch.log_softmax(agent.actor(*next_obs)[0], dim=1)
+    twin = (q1 + q2) / 2 if average_q else torch.min(q1, q2)
+    value = (log_pi.exp() * (twin - agent.alpha * log_pi)).sum(dim=1)
+    expected = batch["reward"] + 0.95 * (1 - batch["done"]) * value
+    seen = _targets_seen(monkeypatch, agent, batch)
+    assert torch.allclose(seen, expected, atol=1e-5)
+    if average_q:  # the mean is above the minimum wherever the twins disagree
+        minimum = (log_pi.exp() * (torch.min(q1, q2) - agent.alpha * log_pi)).sum(dim=1)
+        assert (value > minimum).all()
+
+
+def test_q_clip_stops_the_gradient_of_a_critic_that_moved_past_the_clip():
+    agent = DSAC(DSACConfig(q_clip=0.5), ENCODER)
+    index = torch.zeros(2, 1, dtype=torch.long)
+    old = torch.tensor([[1.0], [1.0]])
+    target = torch.zeros(2)
+    # moved 0.8 towards the target (past the clip) and 0.2 (inside it)
+    for moved, expected_loss, gradient_flows in ((0.8, 0.5**2, False), (0.2, 0.8**2, True)):
+        q_a = torch.full((2,), 1.0 - moved, requires_grad=True)
+        loss = agent._clipped_loss(
+            torch.nn.functional.mse_loss(q_a, target), q_a, old, index, target
+        )
+        loss.backward()
+        assert loss.item() == pytest.approx(expected_loss)
+        assert bool(q_a.grad.abs().sum() > 0) == gradient_flows
+
+
+def test_q_clip_changes_the_update_once_critic_and_target_differ():
+    batch = small_batch(seed=6)
+    batch["reward"] = batch["reward"] * 30
+    runs = []
+    for q_clip in (0.0, 0.01):
+        agent = DSAC(DSACConfig(q_clip=q_clip, lr=1e-2), ENCODER, seed=3)
+        runs.append([agent.update(batch)["qf_loss"] for _ in range(3)])
+    assert runs[0][0] == runs[1][0]  # critic == target at the start: nothing to clip
+    assert runs[0][1:] != runs[1][1:]
+
+
+def test_entropy_penalty_holds_the_policy_entropy_near_the_behaviour_entropy():
+    batch = small_batch(seed=7)
+    batch["behaviour_entropy"] = torch.zeros_like(batch["reward"])  # a deterministic behaviour
+    entropies = {}
+    for penalty in (0.0, 10.0):
+        config = DSACConfig(entropy_penalty=penalty, lr=1e-3, autotune_alpha=False)
+        agent = DSAC(config, ENCODER, seed=1)
+        for _ in range(20):
+            entropies[penalty] = agent.update(batch)["entropy"]
+    assert entropies[10.0] < entropies[0.0] - 0.5
+
+
+def test_entropy_penalty_is_zero_where_the_policy_kept_its_entropy():
+    batch = small_batch(seed=8)
+    plain = DSAC(DSACConfig(), ENCODER, seed=1)
+    penalised = DSAC(DSACConfig(entropy_penalty=10.0), ENCODER, seed=1)
+    obs = (batch["robot"], batch["humans"], batch["mask"])
+    _, batch["behaviour_entropy"] = penalised.sample(*obs)
+    assert plain.update(batch)["actor_loss"] == pytest.approx(
+        penalised.update(batch)["actor_loss"], abs=1e-6
+    )
 
 
 def test_alpha_never_goes_below_its_floor():
@@ -188,6 +260,8 @@ def test_two_thread_update_is_bitwise_identical_with_every_option(share_encoder)
     [
         ({"alpha_min": -0.1}, "dsac.alpha_min must be >= 0.0"),
         ({"grad_clip_norm": -1.0}, "dsac.grad_clip_norm must be >= 0.0"),
+        ({"q_clip": -0.1}, "dsac.q_clip must be >= 0.0"),
+        ({"entropy_penalty": -1.0}, "dsac.entropy_penalty must be >= 0.0"),
         ({"target_entropy_anneal_updates": -5}, "dsac.target_entropy_anneal_updates must be"),
         ({"return_min": 2.0, "return_max": 1.0}, "dsac.return_min (2.0) must be below"),
     ],

@@ -25,6 +25,9 @@ _FIELDS: dict[str, tuple[tuple[str | int, ...], Any]] = {
     "next_humans": (("H", HUMAN_DIM), np.float32),
     "next_mask": (("H",), np.bool_),
     "done": ((), np.float32),
+    # entropy of the policy that chose the action (0 for a deterministic one, and where the
+    # acting algorithm does not give it); DSAC's entropy penalty reads it
+    "behaviour_entropy": ((), np.float32),
 }
 
 
@@ -79,12 +82,16 @@ class ReplayBuffer:
         next_humans: np.ndarray,
         next_mask: np.ndarray,
         done: np.ndarray,
+        behaviour_entropy: np.ndarray | None = None,
     ) -> None:
         """Store E transitions at once (leading axis E on every argument).
 
         Shapes: robot (E, 6), humans (E, n, 7), mask (E, n) with n <= max_humans, action (E,),
-        reward (E,), next_* like their counterparts, done (E,) = terminated (not truncated).
+        reward (E,), next_* like their counterparts, done (E,) = terminated (not truncated),
+        behaviour_entropy (E,) the acting policy's entropy in each state (None: 0).
         """
+        if behaviour_entropy is None:
+            behaviour_entropy = np.zeros(len(action), np.float32)
         batch = {
             "robot": robot,
             "humans": self._pad(np.asarray(humans)),
@@ -95,6 +102,7 @@ class ReplayBuffer:
             "next_humans": self._pad(np.asarray(next_humans)),
             "next_mask": self._pad(np.asarray(next_mask, dtype=np.bool_), False),
             "done": done,
+            "behaviour_entropy": behaviour_entropy,
         }
         n = len(batch["action"])
         if n > self.capacity:  # only the newest `capacity` transitions would survive anyway
@@ -108,7 +116,11 @@ class ReplayBuffer:
         self.added += n
 
     def add_step(
-        self, obs: Sequence[np.ndarray], step: Transitions, next_obs: Sequence[np.ndarray]
+        self,
+        obs: Sequence[np.ndarray],
+        step: Transitions,
+        next_obs: Sequence[np.ndarray],
+        behaviour_entropy: np.ndarray | None = None,
     ) -> None:
         """Store one vector-env step: ``obs`` and ``next_obs`` are (robot, humans, mask) feature
         arrays of ``step.obs`` and ``step.next_obs``, ``step`` a :class:`Transitions`."""
@@ -118,6 +130,7 @@ class ReplayBuffer:
             step.rewards.astype(np.float32),
             *next_obs,
             step.terminated.astype(np.float32),
+            behaviour_entropy,
         )
 
     def recent_slots(self, count: int) -> np.ndarray:
@@ -173,5 +186,5 @@ class ReplayBuffer:
         self.size = int(state["size"])
         self.added = int(state.get("added", self.size))  # checkpoints before the counter
         self.rng.bit_generator.state = state["rng_state"]
-        for name, value in state["data"].items():
+        for name, value in state["data"].items():  # fields a checkpoint lacks stay 0
             self.data[name][: self.size] = value.numpy()

@@ -7,6 +7,7 @@ as sums over actions, so neither the target nor the policy loss samples an actio
   ``V(s') = sum_a' pi(a'|s') (min(Q1', Q2')(s', a') - alpha log pi(a'|s'))``
 - critic: ``MSE(Q1(s, a), y) + MSE(Q2(s, a), y)``
 - policy: ``mean_s sum_a pi(a|s) (alpha log pi(a|s) - min(Q1, Q2)(s, a))`` (Q detached)
+  (``average_q`` puts the mean of the twin critics where these two lines have their minimum)
 - temperature: ``mean_s log_alpha (H(pi(.|s)) - H_target)``, ``H_target = scale * log(n_actions)``
 
 ``done`` is 1 only when the episode *terminated* (collision or goal). A time-limit truncation is
@@ -92,6 +93,17 @@ class DSACConfig:
             entropy scale moves linearly from this value to ``target_entropy_scale`` over that
             many updates, then stays there.
         target_entropy_anneal_updates: length of that schedule in updates (0: constant target).
+        average_q: the soft target and the policy loss use the mean of the twin critics instead
+            of their minimum ("double average Q-learning" of Zhou et al., Revisiting Discrete
+            Soft Actor-Critic): the minimum of two critics over 81 actions underestimates.
+        q_clip: each critic's loss is the larger of its MSE and the MSE of its prediction
+            clipped to within ``q_clip`` of the target critic's value of the same (s, a), so
+            that one update cannot move Q far from the target network (Zhou et al.'s Q-clip;
+            0: off). Costs a pass of the target critic over s as well as s'.
+        entropy_penalty: adds ``entropy_penalty * mean_s (H_behaviour(s) - H(pi(.|s)))^2`` to
+            the policy loss, ``H_behaviour`` being the entropy of the policy that acted in s,
+            stored with the transition (Zhou et al.'s entropy penalty: the policy's entropy may
+            not move far from the one its data was collected with; 0: off).
     """
 
     gamma: float = spec(0.95, low=0.0, high=1.0)
@@ -127,6 +139,9 @@ class DSACConfig:
     critic_layer_norm: bool = False
     target_entropy_start_scale: float = 0.98
     target_entropy_anneal_updates: int = spec(0, low=0)
+    average_q: bool = False
+    q_clip: float = spec(0.0, low=0.0)
+    entropy_penalty: float = spec(0.0, low=0.0)
 
     # may change when a run resumes: bitwise the same training either way
     RESUME_MUTABLE: ClassVar[tuple[str, ...]] = ("parallel_update",)
@@ -285,6 +300,18 @@ class DSAC:
         probs = torch.softmax(logits, dim=1)
         return torch.multinomial(probs, 1, generator=generator).squeeze(1), attention
 
+    @torch.no_grad()
+    def sample(
+        self, robot: Tensor, humans: Tensor, mask: Tensor, generator: torch.Generator | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """``(actions (B,), entropy (B,))``: the actions :meth:`act` would sample with the same
+        ``generator``, and the policy's entropy in each state (the behaviour entropy that
+        ``entropy_penalty`` compares with)."""
+        logits, _ = self.actor(robot, humans, mask)
+        probs = torch.softmax(logits, dim=1)
+        entropy = -(probs * F.log_softmax(logits, dim=1)).sum(dim=1)
+        return torch.multinomial(probs, 1, generator=generator).squeeze(1), entropy
+
     def update(self, batch: dict[str, Tensor]) -> dict[str, float]:
         """One gradient step on critic, policy and temperature from a replay batch.
 
@@ -294,6 +321,7 @@ class DSAC:
         obs = (batch["robot"], batch["humans"], batch["mask"])
         next_obs = (batch["next_robot"], batch["next_humans"], batch["next_mask"])
         alpha = self.log_alpha.detach().exp()
+        behaviour_entropy = batch["behaviour_entropy"] if self.config.entropy_penalty else None
 
         # The critic loss and the policy + temperature losses act on disjoint parameters and
         # every cross term (Q in the policy loss, alpha in both, the entropy in the temperature
@@ -308,14 +336,14 @@ class DSAC:
         if self._worker is None:
             self._next_policy(next_obs, next_policy)
             critic_stats = self._critic_step(*critic_args, next_policy, min_qf_values)
-            actor_stats = self._actor_step(obs, alpha, min_qf_values)
+            actor_stats = self._actor_step(obs, alpha, min_qf_values, behaviour_entropy)
         else:
             critic_job = self._worker.submit(
                 self._critic_step, *critic_args, next_policy, min_qf_values
             )
             try:
                 self._next_policy(next_obs, next_policy)
-                actor_stats = self._actor_step(obs, alpha, min_qf_values)
+                actor_stats = self._actor_step(obs, alpha, min_qf_values, behaviour_entropy)
             except BaseException:
                 wait([critic_job])  # it fails too (its inputs are failed futures); let it finish
                 raise
@@ -352,28 +380,40 @@ class DSAC:
         next_policy: Future[tuple[Tensor, Tensor]],
         min_qf_values: Future[Tensor],
     ) -> tuple[Tensor, ...]:
-        """Soft target, twin-critic loss, backward and step; hands min(Q1, Q2)(s, .) to the policy
-        step through ``min_qf_values`` as soon as the critic's forward pass has it."""
+        """Soft target, twin-critic loss, backward and step; hands the twin estimate of Q(s, .)
+        (:meth:`_twin_q`) to the policy step through ``min_qf_values`` as soon as the critic's
+        forward pass has it."""
         self.critic_optimizer.zero_grad(set_to_none=True)
         try:
             with torch.no_grad():
-                qf1_next_target, qf2_next_target = self.critic_target(*next_obs)
+                if self.config.q_clip > 0:  # Q'(s) too, in the same pass as Q'(s')
+                    both = [torch.cat(pair) for pair in zip(next_obs, obs, strict=True)]
+                    split = len(actions)
+                    qf1_target, qf2_target = self.critic_target(*both)
+                    qf1_next_target, qf1_old = qf1_target[:split], qf1_target[split:]
+                    qf2_next_target, qf2_old = qf2_target[:split], qf2_target[split:]
+                else:
+                    qf1_next_target, qf2_next_target = self.critic_target(*next_obs)
             qf1_values, qf2_values = self.critic(*obs)
-            min_qf_values.set_result(torch.min(qf1_values, qf2_values).detach())
+            min_qf_values.set_result(self._twin_q(qf1_values, qf2_values).detach())
             with torch.no_grad():
                 next_pi, next_log_pi = next_policy.result()
                 # soft state value: exact expectation over the actions (a sum, not a mean)
                 min_qf_next_target = (
-                    next_pi * (torch.min(qf1_next_target, qf2_next_target) - alpha * next_log_pi)
+                    next_pi * (self._twin_q(qf1_next_target, qf2_next_target) - alpha * next_log_pi)
                 ).sum(dim=1)
                 # dones are terminations only; truncated (timeout) transitions bootstrap
                 next_q_value = rewards + self.config.gamma * (1.0 - dones) * min_qf_next_target
                 if self.config.clip_q_targets:
                     next_q_value = next_q_value.clamp(*self._target_range(alpha))
-            qf1_a_values = qf1_values.gather(1, actions.unsqueeze(1)).squeeze(1)
-            qf2_a_values = qf2_values.gather(1, actions.unsqueeze(1)).squeeze(1)
+            index = actions.unsqueeze(1)
+            qf1_a_values = qf1_values.gather(1, index).squeeze(1)
+            qf2_a_values = qf2_values.gather(1, index).squeeze(1)
             qf1_loss = F.mse_loss(qf1_a_values, next_q_value)
             qf2_loss = F.mse_loss(qf2_a_values, next_q_value)
+            if self.config.q_clip > 0:
+                qf1_loss = self._clipped_loss(qf1_loss, qf1_a_values, qf1_old, index, next_q_value)
+                qf2_loss = self._clipped_loss(qf2_loss, qf2_a_values, qf2_old, index, next_q_value)
             qf_loss = qf1_loss + qf2_loss
             qf_loss.backward()
         except BaseException as error:
@@ -384,6 +424,19 @@ class DSAC:
             # a shared encoder is still being read by the policy half: `update` steps it later
             self._step_critic()
         return qf1_loss.detach(), qf2_loss.detach(), qf_loss.detach(), qf1_a_values.mean().detach()
+
+    def _twin_q(self, q1: Tensor, q2: Tensor) -> Tensor:
+        """The twin critics' joint estimate: their minimum, or their mean with ``average_q``."""
+        return (q1 + q2) * 0.5 if self.config.average_q else torch.min(q1, q2)
+
+    def _clipped_loss(
+        self, loss: Tensor, q_a: Tensor, q_old: Tensor, index: Tensor, target: Tensor
+    ) -> Tensor:
+        """Q-clip: the larger of ``loss`` and the MSE of ``q_a`` held within ``q_clip`` of the
+        target critic's ``q_old`` (s, .) at the batch's actions ``index``."""
+        old = q_old.gather(1, index).squeeze(1)
+        clip = self.config.q_clip
+        return torch.maximum(loss, F.mse_loss(old + (q_a - old).clamp(-clip, clip), target))
 
     def _target_range(self, alpha: Tensor) -> tuple[float, float]:
         """Reachable soft targets: the return bounds, plus the entropy bonus's largest sum."""
@@ -414,14 +467,23 @@ class DSAC:
             raise
 
     def _actor_step(
-        self, obs: tuple[Tensor, Tensor, Tensor], alpha: Tensor, min_qf_values: Future[Tensor]
+        self,
+        obs: tuple[Tensor, Tensor, Tensor],
+        alpha: Tensor,
+        min_qf_values: Future[Tensor],
+        behaviour_entropy: Tensor | None,
     ) -> tuple[Tensor, ...]:
-        """Policy loss against this batch's (detached) critic values, temperature loss, backward
-        and the Adam step of the policy and the temperature."""
+        """Policy loss against this batch's (detached) critic values (plus the entropy penalty
+        when ``behaviour_entropy`` is given), temperature loss, backward and the Adam step of the
+        policy and the temperature."""
         self.actor_optimizer.zero_grad(set_to_none=True)
         log_pi = F.log_softmax(self.actor(*obs)[0], dim=1)
         action_probs = log_pi.exp()
         actor_loss = (action_probs * (alpha * log_pi - min_qf_values.result())).sum(dim=1).mean()
+        if behaviour_entropy is not None:
+            policy_entropy = -(action_probs * log_pi).sum(dim=1)
+            penalty = F.mse_loss(policy_entropy, behaviour_entropy)
+            actor_loss = actor_loss + self.config.entropy_penalty * penalty
 
         entropy = -(action_probs.detach() * log_pi.detach()).sum(dim=1)
         alpha_loss = (self.log_alpha * (entropy - self.target_entropy)).mean()

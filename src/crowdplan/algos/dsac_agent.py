@@ -123,6 +123,7 @@ class DSACAgent:
         self.env_steps = 0
         self.update_credit = 0.0
         self._features: Features | None = None  # of the observation the last act() saw
+        self._entropy: np.ndarray | None = None  # of the policy that chose those actions
 
     def pretrain(self, log: Any) -> dict[str, float] | None:
         """ORCA demonstrations into the replay buffer and behaviour cloning of the policy, when
@@ -147,17 +148,20 @@ class DSACAgent:
         self._features = feats = observation_features(obs, self.unicycle)
         num_envs = len(feats.robot)
         if self.env_steps < self.params.random_steps:
+            self._entropy = np.full(num_envs, np.log(self.params.n_actions), np.float32)
             return self.rng.integers(0, self.params.n_actions, size=num_envs)
         inputs = (torch.from_numpy(x).to(self.device) for x in feats)
-        actions, _ = self.core.act(*inputs, generator=self.generator)
+        actions, entropy = self.core.sample(*inputs, generator=self.generator)
+        self._entropy = entropy.cpu().numpy()
         return actions.cpu().numpy()
 
     def observe(self, step: Transitions) -> None:
         feats = self._features
         if feats is None:
             feats = observation_features(step.obs, self.unicycle)
-        self.buffer.add_step(feats, step, observation_features(step.next_obs, self.unicycle))
-        self._features = None
+        next_feats = observation_features(step.next_obs, self.unicycle)
+        self.buffer.add_step(feats, step, next_feats, self._entropy)
+        self._features = self._entropy = None
         self.env_steps += len(step.actions)
         if len(self.buffer) >= self.params.learning_starts:
             self.update_credit += len(step.actions) * self.params.updates_per_step
