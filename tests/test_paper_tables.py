@@ -41,6 +41,8 @@ def _run(root: Path, name: str, circle: float, square: float, rewards: list[floa
     _summary(run / "test", name.split("-")[0], circle, "circle_crossing", **kw)
     _summary(run / "test-square", name.split("-")[0], square, "square_crossing", **kw)
     config = {"name": name, "algo": algo, "world": {"humans": kw.get("train_humans", 5)}}
+    if "val_humans" in kw:
+        config["val_humans"] = kw["val_humans"]
     (run / "config.yaml").write_text(yaml.safe_dump(config))
     meta = {"episodes": 100 * len(rewards), "hours_per_10k_episodes": kw.get("hours", 2.0)}
     meta |= {"torch_threads": 1, "pretrain_seconds": 3600.0 if algo == "value_rl" else None}
@@ -131,6 +133,13 @@ def test_rows_from_result_folders(runs, tmp_path):
     inside = "worse, the paper's value inside our 95% interval (LSA-DSAC)"
     assert f"{inside}; worse than the paper (ORCA)" in notes
     assert "no result yet (CADRL, LSTM-RL, LSTM-A2C, RG-DSAC)" in notes
+
+
+def test_a_run_validated_in_another_world_says_so(runs, tmp_path):
+    cadrl = _run(tmp_path, "cadrl-s3", 0.96, 0.73, [0.5], train_humans=1, val_humans=5)
+    text = paper_report([*_args(runs, tmp_path)[:-1], f"CADRL={cadrl}"], PAGE)
+    assert _rows(text, "Table II")["CADRL"][:2] == ["cadrl-s3", "1 human, validated with 5"]
+    assert _rows(text, "Table II")["SARL"][1] == "5 humans"
 
 
 def test_methods_without_runs_show_the_paper_value(runs, tmp_path):

@@ -97,9 +97,10 @@ class DSACConfig:
             of their minimum ("double average Q-learning" of Zhou et al., Revisiting Discrete
             Soft Actor-Critic): the minimum of two critics over 81 actions underestimates.
         q_clip: each critic's loss is the larger of its MSE and the MSE of its prediction
-            clipped to within ``q_clip`` of the target critic's value of the same (s, a), so
-            that one update cannot move Q far from the target network (Zhou et al.'s Q-clip;
-            0: off). Costs a pass of the target critic over s as well as s'.
+            clipped to within ``q_clip`` of the target critic's value of the same (s, a): once
+            the predictions have moved towards their TD targets by more than that, the clipped
+            loss is the larger and stops pulling them, a trust region around the target network
+            (Zhou et al.'s Q-clip; 0: off). Costs a pass of the target critic over s as well.
         entropy_penalty: adds ``entropy_penalty * mean_s (H_behaviour(s) - H(pi(.|s)))^2`` to
             the policy loss, ``H_behaviour`` being the entropy of the policy that acted in s,
             stored with the transition (Zhou et al.'s entropy penalty: the policy's entropy may

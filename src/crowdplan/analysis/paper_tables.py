@@ -215,6 +215,9 @@ def _training(run: Run) -> str:
     ).get("lookahead")
     if run.config.get("algo") == "value_rl" and lookahead:
         text += f", {lookahead} lookahead"
+    val_humans = run.config.get("val_humans")
+    if val_humans is not None and val_humans != humans:
+        text += f", validated with {val_humans}"  # table II's reward is from that world
     return text
 
 
