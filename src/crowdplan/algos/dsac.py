@@ -298,8 +298,7 @@ class DSAC:
         logits, attention = self.actor(robot, humans, mask)
         if deterministic:
             return logits.argmax(dim=1), attention
-        probs = torch.softmax(logits, dim=1)
-        return torch.multinomial(probs, 1, generator=generator).squeeze(1), attention
+        return _draw(logits, generator)[0], attention
 
     @torch.no_grad()
     def sample(
@@ -308,10 +307,7 @@ class DSAC:
         """``(actions (B,), entropy (B,))``: the actions :meth:`act` would sample with the same
         ``generator``, and the policy's entropy in each state (the behaviour entropy that
         ``entropy_penalty`` compares with)."""
-        logits, _ = self.actor(robot, humans, mask)
-        probs = torch.softmax(logits, dim=1)
-        entropy = -(probs * F.log_softmax(logits, dim=1)).sum(dim=1)
-        return torch.multinomial(probs, 1, generator=generator).squeeze(1), entropy
+        return _draw(self.actor(robot, humans, mask)[0], generator)
 
     def update(self, batch: dict[str, Tensor]) -> dict[str, float]:
         """One gradient step on critic, policy and temperature from a replay batch.
@@ -481,12 +477,11 @@ class DSAC:
         log_pi = F.log_softmax(self.actor(*obs)[0], dim=1)
         action_probs = log_pi.exp()
         actor_loss = (action_probs * (alpha * log_pi - min_qf_values.result())).sum(dim=1).mean()
+        entropy = -(action_probs * log_pi).sum(dim=1)
         if behaviour_entropy is not None:
-            policy_entropy = -(action_probs * log_pi).sum(dim=1)
-            penalty = F.mse_loss(policy_entropy, behaviour_entropy)
+            penalty = F.mse_loss(entropy, behaviour_entropy)
             actor_loss = actor_loss + self.config.entropy_penalty * penalty
-
-        entropy = -(action_probs.detach() * log_pi.detach()).sum(dim=1)
+        entropy = entropy.detach()
         alpha_loss = (self.log_alpha * (entropy - self.target_entropy)).mean()
         if self.n_updates < self.config.actor_warmup_updates:
             return actor_loss.detach(), alpha_loss.detach(), entropy.mean()
@@ -534,6 +529,14 @@ class DSAC:
         self.critic_optimizer.load_state_dict(critic_state)
         self.actor_optimizer.load_state_dict(actor_state)
         self.n_updates = int(state["n_updates"])
+
+
+def _draw(logits: Tensor, generator: torch.Generator | None) -> tuple[Tensor, Tensor]:
+    """One action per row sampled from ``softmax(logits)`` with ``generator``, and the
+    distribution's entropy per row."""
+    probs = torch.softmax(logits, dim=1)
+    entropy = -(probs * F.log_softmax(logits, dim=1)).sum(dim=1)
+    return torch.multinomial(probs, 1, generator=generator).squeeze(1), entropy
 
 
 def _split_joint_optimizer_state(state: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
