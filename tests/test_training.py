@@ -189,6 +189,11 @@ def test_shipped_presets_load():
     for name in ("rg", "aw", "sa", "lsa"):
         config = load_config(f"configs/{name}_dsac_ent05.yaml")
         assert config.encoder.name == name and config.algo_config.target_entropy_scale == 0.5
+    for name in ("rg", "lsa"):  # ALN-DSAC's temperature: the setting that learns
+        config = load_config(f"configs/{name}_dsac_aln.yaml")
+        dsac = config.algo_config
+        assert config.encoder.name == name and config.world.humans == 5
+        assert (dsac.target_entropy, dsac.init_alpha) == (-162.0, 1.0)
     # the discount read as 0.95 per second of travel: 0.95 ** (dt * v_pref) per step
     config = load_config("configs/lsa_dsac_ent05_gsec.yaml")
     per_second = 0.95 ** (config.world.dt * config.world.robot_v_pref)
