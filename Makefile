@@ -56,9 +56,10 @@ ship:
 	cp $(RUN)/config.yaml models/$(NAME)/config.yaml
 	$(if $(SHIELD),$(PY) -m crowdplan.planner_options models/$(NAME)/model.pt --shield $(SHIELD))
 
-# Regenerate every table of docs/results.md from the committed result folders.
+# Regenerate every table of docs/results.md and docs/training.md from the committed result folders.
 results-doc: setup
 	$(BIN)/crowdplan report --fill docs/results.md
+	$(BIN)/crowdplan report --fill docs/training.md
 
 # Trajectory records (crowdplan eval --record) of the 500 test cases that the report's strategy and
 # attention analyses read: shipped models, ORCA, the blind baseline and two encoder runs on

@@ -5,12 +5,16 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from crowdplan.analysis.report import (
     lowest_success_after,
     minutes_to_success,
     read_run,
     training_table,
 )
+from crowdplan.analysis.seed_targets import read_seed, seed_table
+from crowdplan.cli import main
 
 
 def make_run(folder, successes, pretrain_seconds=None):
@@ -57,3 +61,72 @@ def test_the_lowest_success_after_the_first_0_95_counts_a_later_collapse(tmp_pat
     _, validations = read_run(run)
     assert lowest_success_after(validations) == (0.42, 200)
     assert lowest_success_after(validations[:1]) is None  # never reached 0.95
+
+
+def _with_test(run, success, time_to_goal):
+    """Give a run folder the summary.json of its 500-case test."""
+    (run / "test").mkdir()
+    summary = {"success_rate": {"value": success}, "time_to_goal": {"value": time_to_goal}}
+    (run / "test" / "summary.json").write_text(json.dumps(summary))
+    return run
+
+
+def test_seed_targets_per_seed_and_across_seeds(tmp_path):
+    runs = [
+        # meets all three: first 0.95 at 100, never below 0.9 after, 0.99 at episode 200
+        _with_test(make_run(tmp_path / "a", [0.95, 0.99, 0.91]), 0.996, 10.8),
+        # success but slow, and a dip to 0.85 after its first 0.95
+        _with_test(make_run(tmp_path / "b", [0.96, 0.85, 1.0]), 0.99, 11.2),
+        # never learned; stopped before a test
+        make_run(tmp_path / "c", [0.1, 0.2]),
+    ]
+    results = [read_seed(run) for run in runs]
+    assert [(r.meets_success, r.meets_time, r.stable) for r in results] == [
+        (True, True, True),
+        (True, False, False),
+        (False, False, False),
+    ]
+    table = seed_table(runs).splitlines()
+    assert table[2].endswith("| 0.996 | 10.80 | 100 | 0.91 | 20 | success, time, stable |")
+    assert table[3].endswith("| 0.990 | 11.20 | 100 | 0.85 | 30 | success |")
+    assert table[4].endswith("| - | - | never | - | never | none |")
+    across = table[5]
+    assert "| 0.993 [" in across and "(2 seeds)" in across  # the run without a test is left out
+    # minutes: 20, 30 and never (slower than any) -> median 30
+    assert across.endswith("| 30 | success 2 of 3, time 1 of 3, stable 1 of 3 |")
+
+
+def test_seed_targets_median_minutes_is_never_when_most_seeds_never_got_there(tmp_path):
+    runs = [
+        make_run(tmp_path / name, successes)
+        for name, successes in [("a", [0.99]), ("b", [0.5]), ("c", [0.2])]
+    ]
+    assert (
+        seed_table(runs)
+        .splitlines()[-1]
+        .endswith("| never | success 0 of 3, time 0 of 3, stable 1 of 3 |")
+    )
+
+
+def test_seed_targets_explain_a_folder_that_is_not_a_run(tmp_path):
+    with pytest.raises(FileNotFoundError, match="not a training run folder"):
+        read_seed(tmp_path)
+    with pytest.raises(ValueError, match="training run folders"):
+        seed_table([])
+
+
+def test_report_seeds_prints_and_fills_the_table(tmp_path, capsys):
+    run = _with_test(make_run(tmp_path / "a", [0.95, 0.99]), 0.996, 10.8)
+    assert main(["report", "--seeds", str(run)]) == 0
+    assert (
+        capsys.readouterr()
+        .out.splitlines()[-1]
+        .endswith("success 1 of 1, time 1 of 1, stable 1 of 1 |")
+    )
+    page = tmp_path / "page.md"
+    page.write_text(f"<!-- crowdplan report --seeds {run} -->\nstale\n<!-- end report -->\n")
+    assert main(["report", "--fill", str(page)]) == 0
+    assert "stale" not in page.read_text() and "| 0.996 | 10.80 |" in page.read_text()
+    assert main(["report", "--seeds", "--paper", str(run)]) == 2
+    assert main(["report", "--seeds", str(tmp_path)]) == 2
+    assert "not a training run folder" in capsys.readouterr().err

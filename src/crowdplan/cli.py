@@ -227,14 +227,23 @@ def cmd_report(args: argparse.Namespace) -> int:
     from crowdplan.analysis.report import fill_markdown, report
 
     if args.out:
-        if args.folders or args.fill or args.paper:
+        if args.folders or args.fill or args.paper or args.seeds:
             raise ValueError(
-                "--out makes the report from --results: give no folders, --fill or --paper"
+                "--out makes the report from --results: give no folders, --fill, --paper or --seeds"
             )
         from crowdplan.analysis.html_report import build_report
 
         page = build_report(args.out, args.results)
         print(f"wrote {page} and {page.parent / 'tables.md'}")
+        return 0
+    if args.seeds:
+        if args.fill or args.paper:
+            raise ValueError(
+                "--seeds prints the table of the run folders given: no --fill, --paper"
+            )
+        from crowdplan.analysis.seed_targets import seed_table
+
+        print(seed_table(args.folders), end="")
         return 0
     if args.paper:
         if args.fill:
@@ -403,7 +412,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "folders",
         nargs="*",
-        help="folders searched for summary.json and runs; with --paper: METHOD=DIR words",
+        help="folders searched for summary.json and runs; with --paper: METHOD=DIR words; "
+        "with --seeds: training run folders",
     )
     p.add_argument(
         "--paper",
@@ -411,6 +421,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="the paper's tables II, VI, VII, VIII and IX with its values beside ours, from "
         "METHOD=DIR words (a method named again: one more seed; METHOD?=DIR: a run that may not "
         "be trained yet); a '<!-- crowdplan report --paper ... -->' block of --fill holds them",
+    )
+    p.add_argument(
+        "--seeds",
+        action="store_true",
+        help="per seed and across seeds, whether the training run folders given (one preset's "
+        "seeds) reach the training targets: test success, time to goal, stable validations "
+        "(docs/training.md); a '<!-- crowdplan report --seeds ... -->' block of --fill holds it",
     )
     p.add_argument(
         "--fill",

@@ -10,7 +10,8 @@ the tables of docs/results.md are always the output of the command written above
 ``<!-- crowdplan report --transfer DIR -->`` holds the planner x test-world table of a folder
 written by ``python -m crowdplan.analysis.test_worlds`` and its paired comparisons. A block
 ``<!-- crowdplan report --paper METHOD=DIR ... -->`` holds the paper's comparison tables
-(:mod:`crowdplan.analysis.paper_tables`).
+(:mod:`crowdplan.analysis.paper_tables`), one ``<!-- crowdplan report --seeds RUN ... -->`` the
+seed targets of one preset's runs (:mod:`crowdplan.analysis.seed_targets`).
 """
 
 from __future__ import annotations
@@ -207,6 +208,10 @@ def fill_markdown(path: str | Path) -> int:
             if len(args) != 2 or not Path(args[1]).is_dir():
                 raise ValueError(f"{path}: a --transfer block names one existing folder: {args}")
             body = "\n".join(t.markdown() for t in transfer_tables(Path(args[1])))
+        elif args[:1] == ["--seeds"]:
+            from crowdplan.analysis.seed_targets import seed_table
+
+            body = seed_table(args[1:]).rstrip("\n")
         elif args[:1] == ["--paper"]:
             from crowdplan.analysis.paper_tables import paper_report
 
