@@ -192,3 +192,18 @@ def test_fill_block_and_cli(runs, tmp_path, monkeypatch, capsys):
     assert capsys.readouterr().out in filled
     assert main(["report", "--paper", f"SARL={tmp_path / 'none'}"]) == 2
     assert "SARL?=" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("dsac", "trained_with"),
+    [
+        ({"target_entropy_scale": 0.5, "n_actions": 81}, "5 humans, target entropy 0.5 log 81"),
+        ({"target_entropy_scale": 0.98, "target_entropy": -162.0}, "5 humans, target entropy -162"),
+    ],
+)
+def test_a_dsac_run_says_its_target_entropy(tmp_path, dsac, trained_with):
+    run = _run(tmp_path, "rg-s0", 0.95, 0.5, [0.5], algo="dsac", encoder="rg")
+    config = yaml.safe_load((run / "config.yaml").read_text())
+    (run / "config.yaml").write_text(yaml.safe_dump(config | {"dsac": dsac}))
+    text = paper_report([f"RG-DSAC={run}"], PAGE)
+    assert _rows(text, "Table VI")["RG-DSAC"][:2] == ["rg-s0", trained_with]

@@ -215,10 +215,20 @@ def _training(run: Run) -> str:
     ).get("lookahead")
     if run.config.get("algo") == "value_rl" and lookahead:
         text += f", {lookahead} lookahead"
+    dsac = run.config.get("dsac") if run.config.get("algo", "dsac") == "dsac" else None
+    if dsac:  # the paper leaves it out; docs/training.md compares the readings
+        text += f", target entropy {_target_entropy(dsac)}"
     val_humans = run.config.get("val_humans")
     if val_humans is not None and val_humans != humans:
         text += f", validated with {val_humans}"  # table II's reward is from that world
     return text
+
+
+def _target_entropy(dsac: dict) -> str:
+    """A DSAC run's target entropy as its config gives it: absolute, or a share of log(actions)."""
+    if dsac.get("target_entropy") is not None:
+        return f"{dsac['target_entropy']:g}"
+    return f"{dsac.get('target_entropy_scale', 0.98):g} log {dsac.get('n_actions', 81)}"
 
 
 def _paper_float(text: str | None) -> float | None:
