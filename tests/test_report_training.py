@@ -17,12 +17,12 @@ from crowdplan.analysis.seed_targets import read_seed, seed_table
 from crowdplan.cli import main
 
 
-def make_run(folder, successes, pretrain_seconds=None):
+def make_run(folder, successes, pretrain_seconds=None, seed=3):
     """A run folder whose validation every 100 episodes has the given successes; episode k ends
     at 6k training seconds."""
     folder.mkdir()
     meta = {
-        "seed": 3,
+        "seed": seed,
         "episodes": 100 * len(successes),
         "env_steps": 1,
         "hours_per_10k_episodes": 1,
@@ -74,11 +74,11 @@ def _with_test(run, success, time_to_goal):
 def test_seed_targets_per_seed_and_across_seeds(tmp_path):
     runs = [
         # meets all three: first 0.95 at 100, never below 0.9 after, 0.99 at episode 200
-        _with_test(make_run(tmp_path / "a", [0.95, 0.99, 0.91]), 0.996, 10.8),
+        _with_test(make_run(tmp_path / "a", [0.95, 0.99, 0.91], seed=0), 0.996, 10.8),
         # success but slow, and a dip to 0.85 after its first 0.95
-        _with_test(make_run(tmp_path / "b", [0.96, 0.85, 1.0]), 0.99, 11.2),
+        _with_test(make_run(tmp_path / "b", [0.96, 0.85, 1.0], seed=1), 0.99, 11.2),
         # never learned; stopped before a test
-        make_run(tmp_path / "c", [0.1, 0.2]),
+        make_run(tmp_path / "c", [0.1, 0.2], seed=2),
     ]
     results = [read_seed(run) for run in runs]
     assert [(r.meets_success, r.meets_time, r.stable) for r in results] == [
@@ -98,14 +98,20 @@ def test_seed_targets_per_seed_and_across_seeds(tmp_path):
 
 def test_seed_targets_median_minutes_is_never_when_most_seeds_never_got_there(tmp_path):
     runs = [
-        make_run(tmp_path / name, successes)
-        for name, successes in [("a", [0.99]), ("b", [0.5]), ("c", [0.2])]
+        make_run(tmp_path / name, successes, seed=seed)
+        for seed, (name, successes) in enumerate([("a", [0.99]), ("b", [0.5]), ("c", [0.2])])
     ]
     assert (
         seed_table(runs)
         .splitlines()[-1]
         .endswith("| never | success 0 of 3, time 0 of 3, stable 1 of 3 |")
     )
+
+
+def test_runs_of_one_seed_get_no_across_seed_row(tmp_path):
+    runs = [make_run(tmp_path / name, [0.99]) for name in ("plain", "with_option")]
+    table = seed_table(runs).splitlines()
+    assert len(table) == 4 and "across" not in seed_table(runs)
 
 
 def test_seed_targets_explain_a_folder_that_is_not_a_run(tmp_path):

@@ -107,7 +107,8 @@ def _met(result: SeedResult) -> str:
 
 
 def seed_rows(results: list[SeedResult]) -> list[list[str]]:
-    """One row of :data:`HEADER` per seed, then the across-seed row."""
+    """One row of :data:`HEADER` per seed, then the across-seed row; runs that share a seed
+    (one seed under different options) get no across row: their spread is not a seed's."""
     rows = [
         [
             str(r.run),
@@ -123,6 +124,8 @@ def seed_rows(results: list[SeedResult]) -> list[list[str]]:
         for r in results
     ]
     n = len(results)
+    if len({r.seed for r in results}) < n:
+        return rows
     # a seed that never got there counts as slower than any that did
     median = statistics.median(math.inf if r.minutes is None else r.minutes for r in results)
     success = across_seeds([r.success for r in results], bounds=(0.0, 1.0))
