@@ -39,6 +39,12 @@ class Run:
 
     @property
     def method(self) -> str:
+        """The variant the run is a seed of: its folder's name without the ``-s<seed>`` suffix
+        (``make publish`` names a sweep's variant there, e.g. ``lsa_dsac_aln_avgq-s4``, whose
+        config keeps the preset's name), else the config's name and crowd size."""
+        variant = re.fullmatch(rf"(.+)-s{self.seed}", self.folder.name)
+        if variant:
+            return variant.group(1)
         return self.name if self.humans == 5 else f"{self.name}-h{self.humans}"
 
 
@@ -125,7 +131,7 @@ PANELS = (
         "f",
         "LSA-DSAC variants, 5 humans",
         lambda r: r.algo == "dsac" and r.encoder == "lsa" and r.humans == 5,
-        lambda r: r.name,
+        lambda r: r.method,
     ),
     Panel(
         "g",

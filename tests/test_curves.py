@@ -1,0 +1,29 @@
+"""Which variant a published training run is a seed of (report grouping, curve panels)."""
+
+from __future__ import annotations
+
+import yaml
+
+from crowdplan.analysis.curves import discover_runs
+
+
+def _run(root, folder: str, name: str, seed: int, humans: int = 5) -> None:
+    run = root / folder
+    run.mkdir()
+    config = {"name": name, "seed": seed, "world": {"humans": humans}}
+    (run / "config.yaml").write_text(yaml.safe_dump(config))
+    (run / "episodes.csv").write_text("episode,discounted_return\n1,0.5\n")
+
+
+def test_a_sweep_variant_is_its_own_method_though_its_config_keeps_the_preset_name(tmp_path):
+    _run(tmp_path, "lsa_dsac_aln-s4", "lsa_dsac_aln", 4)
+    _run(tmp_path, "lsa_dsac_aln_avgq-s4", "lsa_dsac_aln", 4)
+    _run(tmp_path, "lsa_dsac_ent05-h1-s0", "lsa_dsac_ent05", 0, humans=1)
+    _run(tmp_path, "my_run", "cadrl", 2, humans=1)  # not named <variant>-s<seed>
+    methods = {run.folder.name: run.method for run in discover_runs(tmp_path)}
+    assert methods == {
+        "lsa_dsac_aln-s4": "lsa_dsac_aln",
+        "lsa_dsac_aln_avgq-s4": "lsa_dsac_aln_avgq",
+        "lsa_dsac_ent05-h1-s0": "lsa_dsac_ent05-h1",
+        "my_run": "cadrl-h1",
+    }
