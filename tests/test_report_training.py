@@ -110,8 +110,8 @@ def test_seed_targets_median_minutes_is_never_when_most_seeds_never_got_there(tm
 
 def test_runs_of_one_seed_get_no_across_seed_row(tmp_path):
     runs = [make_run(tmp_path / name, [0.99]) for name in ("plain", "with_option")]
-    table = seed_table(runs).splitlines()
-    assert len(table) == 4 and "across" not in seed_table(runs)
+    table = seed_table(runs)
+    assert len(table.splitlines()) == 4 and "across" not in table
 
 
 def test_seed_targets_explain_a_folder_that_is_not_a_run(tmp_path):
