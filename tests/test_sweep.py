@@ -172,6 +172,22 @@ def test_folders_of_something_else_or_another_sweep_are_not_touched(tmp_path):
         SweepFolder(tmp_path / "s").prepare(changed, 1, expand(changed, [], [0], 1))
 
 
+def test_a_sweep_from_before_an_option_existed_still_resumes(tmp_path):
+    trials = expand(BASE, [], [0], 1)
+    folder = SweepFolder(tmp_path / "s")
+    folder.prepare(BASE, 1, trials)
+    marker = tmp_path / "s" / "sweep.json"
+    saved = json.loads(marker.read_text())
+    del saved["base"]["policy_average"]  # as a version without the option wrote it
+    marker.write_text(json.dumps(saved))
+    config = folder.config(trials[0].name)
+    old = yaml.safe_load(config.read_text())
+    del old["policy_average"]
+    config.write_text(yaml.safe_dump(old))
+    folder.prepare(BASE, 1, trials)  # no error: the missing option takes its default
+    assert json.loads(marker.read_text())["base"]["policy_average"] == 1
+
+
 def test_cli_refuses_bad_input_before_any_work(tmp_path, capsys):
     config = tmp_path / "tiny.yaml"
     config.write_text(yaml.safe_dump(TINY))

@@ -183,6 +183,17 @@ def expand(
     return trials
 
 
+def _as_read_now(config: Any) -> Any:
+    """A config saved by an earlier version as this one reads it: options added since then take
+    their defaults, so that a sweep started before they existed still resumes."""
+    from crowdplan.training.config import config_from_dict, with_legacy_defaults
+
+    try:
+        return json.loads(json.dumps(config_from_dict(with_legacy_defaults(config)).to_dict()))
+    except (ValueError, TypeError):
+        return config  # not a valid config: compared as it is, and found different
+
+
 # ---------------------------------------------------------------------- the sweep folder
 class SweepFolder:
     """Paths of a sweep folder and the checks that keep two sweeps from mixing in it."""
@@ -209,6 +220,7 @@ class SweepFolder:
         marker = self.root / "sweep.json"
         if marker.is_file():
             saved = json.loads(marker.read_text())
+            saved["base"] = _as_read_now(saved.get("base"))
             if saved != spec:
                 changed = sorted(k for k in spec if saved.get(k) != spec[k])
                 raise ValueError(
@@ -222,7 +234,7 @@ class SweepFolder:
             )
         for trial in trials:
             path = self.config(trial.name)
-            if path.is_file() and yaml.safe_load(path.read_text()) != trial.config:
+            if path.is_file() and _as_read_now(yaml.safe_load(path.read_text())) != trial.config:
                 raise ValueError(f"{path} holds another config than trial {trial.name} has now")
         write_json(marker, spec)
         for trial in trials:

@@ -38,6 +38,10 @@ class TrainConfig:
         keep_validation_models: also write each validation's greedy policy to
             ``validation_models/episode-NNNNNN.pt`` (for ``crowdplan.analysis.argmax_flips``;
             about 0.4 MB each for LSA-DSAC).
+        policy_average: validate, keep as best model and test the mean of the weights of the
+            policies of the last ``policy_average`` validations instead of the current policy
+            (1: the current one). Training never sees it (``crowdplan.training.policy_average``;
+            docs/training.md, section 6).
         checkpoint_interval: episodes between checkpoints.
         log_interval: episodes between progress lines and update-statistics rows.
         test_episodes: test cases evaluated at the end (0 skips the final test).
@@ -57,6 +61,7 @@ class TrainConfig:
     val_episodes: int = spec(100, low=1, high=100)
     val_humans: int | None = None
     keep_validation_models: bool = False
+    policy_average: int = spec(1, low=1)
     checkpoint_interval: int = spec(250, low=1)
     log_interval: int = spec(50, low=1)
     test_episodes: int = spec(500, low=0, high=500)

@@ -5,19 +5,22 @@ A run folder holds:
     config.yaml          resolved configuration (every default written out)
     meta.json            git hash, seeds, wall-clock time, hours per 10k episodes
     episodes.csv         one row per training episode (seed, outcome, steps, return)
-    validation.csv       one row per validation (the validation cases, greedy policy)
+    validation.csv       one row per validation (the validation cases, greedy policy; with
+                         policy_average > 1 the average of the last validations' policies)
     updates.csv          the agent's update statistics every log interval
     curves.png           training and validation reward / success curves
     tb/                  TensorBoard logs of the same curves
     checkpoint.pt        everything needed to resume exactly (written atomically)
-    best_model.pt        policy with the best validation reward so far; final_model.pt at the end
-    validation_models/   with keep_validation_models: the greedy policy of every validation
+    best_model.pt        validated policy with the best validation reward so far
+    final_model.pt       the agent's own policy at the end
+    validation_models/   with keep_validation_models: the policy of every validation
     test/                summary.json + episodes.jsonl of the test cases (best model)
 """
 
 from __future__ import annotations
 
 import contextlib
+import copy
 import math
 import threading
 import time
@@ -33,6 +36,7 @@ from crowdplan.algos.registry import get_algorithm
 from crowdplan.config import to_dict
 from crowdplan.models import load_model_policy
 from crowdplan.policies import git_hash, run_metadata
+from crowdplan.policy import Policy
 from crowdplan.progress import Progress
 from crowdplan.sim.env import TRAIN_SEED_BASE, CrowdNavVectorEnv
 from crowdplan.training.checkpoint import (
@@ -43,6 +47,7 @@ from crowdplan.training.checkpoint import (
     world_state,
 )
 from crowdplan.training.config import TrainConfig, config_from_dict, with_legacy_defaults
+from crowdplan.training.policy_average import average_payloads, payload_policy
 from crowdplan.training.run_logs import RunLogs
 
 # Summary metrics copied into validation.csv.
@@ -52,6 +57,16 @@ VALIDATION_METRICS = (
     "timeout_rate",
     "time_to_goal",
     "mean_reward",
+)
+
+
+# Settings a run may change when it resumes: the budget and how it is validated.
+RESUME_MUTABLE = (
+    "episodes",
+    "val_interval",
+    "val_humans",
+    "keep_validation_models",
+    "policy_average",
 )
 
 
@@ -93,6 +108,7 @@ class Trainer:
         self.env_steps = 0
         self.logs = RunLogs(self.run_dir)
         self.best_val_reward = -math.inf
+        self.recent_policies: list[dict[str, Any]] = []  # model files of the last validations
         self.train_seconds = 0.0
         self.pretrain_seconds: float | None = None
         self.pretrain_stats: dict[str, float] | None = None
@@ -154,37 +170,43 @@ class Trainer:
 
     # -------------------------------------------------------------- validation / logs
     def validate(self) -> dict:
-        """Greedy policy on the validation cases; keeps the best model by mean reward."""
-        policy = self.agent.policy(self.config.name)
-        seeds = evaluation.validation_seeds(self.config.val_episodes)
-        world = self.config.validation_world()
-        summary = evaluation.summarize(evaluation.run_episodes(policy, world, seeds))
-        row = {
-            "episode": len(self.episodes),
-            "env_steps": self.env_steps,
-            **{k: summary[k]["value"] for k in VALIDATION_METRICS},
-        }
+        """Greedy policy on the validation cases (with ``policy_average`` > 1, the average of
+        the last validations' policies); keeps the best model by mean reward."""
+        payload = self.agent.model_payload(self._model_info())
+        if self.config.policy_average == 1:
+            policy = self.agent.policy(self.config.name)
+        else:
+            # a copy: the payload's tensors share storage with the parameters training updates
+            kept = copy.deepcopy(payload)
+            self.recent_policies = [*self.recent_policies, kept][-self.config.policy_average :]
+            payload = average_payloads(self.recent_policies)
+            policy = payload_policy(payload, self.config.name)
+        row = validation_row(policy, self.config, len(self.episodes), self.env_steps)
         self.validations.append(row)
         if self.config.keep_validation_models:
             path = self.run_dir / "validation_models" / f"episode-{row['episode']:06d}.pt"
             path.parent.mkdir(exist_ok=True)
-            self.save_model(path, {"success_rate": row["success_rate"]})
+            torch_save_atomic(path, _with_info(payload, success_rate=row["success_rate"]))
         if row["mean_reward"] > self.best_val_reward:
             self.best_val_reward = row["mean_reward"]
-            self.save_model(self.run_dir / "best_model.pt", {"selected_at_episode": row["episode"]})
+            torch_save_atomic(
+                self.run_dir / "best_model.pt",
+                _with_info(payload, selected_at_episode=row["episode"]),
+            )
         return row
 
-    def save_model(self, path: Path, extra: dict) -> None:
-        """The agent's greedy policy as a model file, with where it came from."""
-        info = {
+    def _model_info(self) -> dict[str, Any]:
+        return {
             "name": self.config.name,
             "algo": self.config.algo,
             "seed": self.config.seed,
             "git": self.code_version,
             "episodes_trained": len(self.episodes),
-            **extra,
         }
-        torch_save_atomic(path, self.agent.model_payload(info))
+
+    def save_model(self, path: Path, extra: dict) -> None:
+        """The agent's current greedy policy as a model file, with where it came from."""
+        torch_save_atomic(path, self.agent.model_payload({**self._model_info(), **extra}))
 
     def _recent(self, n: int = 100) -> tuple[float, float]:
         recent = self.episodes[-n:]
@@ -263,6 +285,7 @@ class Trainer:
             },
             "logs": self.logs.state(),
             "last_stats": self._last_stats,
+            "recent_policies": self.recent_policies,
         }
         self.write_logs()
         torch_save_atomic(self.run_dir / "checkpoint.pt", state)
@@ -270,16 +293,15 @@ class Trainer:
     def restore(self, path: Path) -> None:
         """Continue from a checkpoint of the same configuration.
 
-        Only the episode budget, the validation settings (``val_interval``, ``val_humans``,
-        ``keep_validation_models``) and the algorithm's own ``RESUME_MUTABLE`` settings may
-        differ: none of them changes the training trajectory (validation runs its own worlds,
-        greedily, without randomness).
+        Only the episode budget, the validation settings (:data:`RESUME_MUTABLE`) and the
+        algorithm's own ``RESUME_MUTABLE`` settings may differ: none of them changes the training
+        trajectory (validation runs its own worlds, greedily, without randomness).
         """
         state = read_checkpoint(path)
         # normalised through TrainConfig, so options added since the checkpoint take defaults
         saved = config_from_dict(with_legacy_defaults(state["config"])).to_dict()
         current = self.config.to_dict()
-        for key in ("episodes", "val_interval", "val_humans", "keep_validation_models"):
+        for key in RESUME_MUTABLE:
             saved[key] = current[key]
         algo = self.config.algo
         for key in getattr(type(self.config.algo_config), "RESUME_MUTABLE", ()):
@@ -311,6 +333,7 @@ class Trainer:
             interval = self.config.val_interval
             self._next_val = (len(self.episodes) // interval + 1) * interval
         self._last_stats = state["last_stats"]
+        self.recent_policies = state.get("recent_policies", [])[-self.config.policy_average :]
 
     # -------------------------------------------------------------- main loop
     def run(self) -> bool:
@@ -369,7 +392,8 @@ class Trainer:
                 f"validation at episode {done}: success {row['success_rate']:.2f} "
                 f"reward {row['mean_reward']:+.3f}"
             )
-            self._next_val += cfg.val_interval
+            # the next multiple of the interval: one step may finish several episodes
+            self._next_val = (done // cfg.val_interval + 1) * cfg.val_interval
         # wall clock of rollouts, updates, logging and validation; checkpoints excluded so
         # that the time saved in a checkpoint is complete
         self.train_seconds += time.perf_counter() - start
@@ -405,6 +429,25 @@ def _stop_requests():
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def validation_row(
+    policy: Policy, config: TrainConfig, episode: int, env_steps: int
+) -> dict[str, Any]:
+    """One row of validation.csv: ``policy`` on the run's validation cases."""
+    seeds = evaluation.validation_seeds(config.val_episodes)
+    summary = evaluation.summarize(
+        evaluation.run_episodes(policy, config.validation_world(), seeds)
+    )
+    return {
+        "episode": episode,
+        "env_steps": env_steps,
+        **{k: summary[k]["value"] for k in VALIDATION_METRICS},
+    }
+
+
+def _with_info(payload: dict[str, Any], **extra: Any) -> dict[str, Any]:
+    return {**payload, "info": {**payload["info"], **extra}}
 
 
 def _expand(done: np.ndarray, value: np.ndarray) -> np.ndarray:

@@ -1,0 +1,141 @@
+"""What ``policy_average: K`` would have validated, selected and tested in a finished run.
+
+Training never sees the averaged policy (:mod:`crowdplan.training.policy_average`), so a run made
+with ``keep_validation_models: true`` and ``policy_average: 1`` holds everything a run of the
+same config and seed with ``policy_average: K`` would have done: the same training episodes,
+and at every validation the policies whose weights it would have averaged. This replays those
+validations and writes the run folder the averaging run would have written (validation.csv,
+best_model.pt, meta.json and config.yaml; episodes.csv and updates.csv are copied), ready for
+``make publish RUN=DIR`` (tested against a real ``policy_average`` run).
+
+    python -m crowdplan.analysis.averaged_validation runs/<run> --average 4 --out runs/<run>-avg4
+
+Validations before the first kept model (a run resumed with ``--keep-validation-models``) are
+left out; the first K - 1 rows after it average fewer than K policies, and meta.json says so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from crowdplan.analysis.plots import plot_training_curves
+from crowdplan.io import atomic_write, write_json
+from crowdplan.models import load_payload
+from crowdplan.training.checkpoint import torch_save_atomic
+from crowdplan.training.config import TrainConfig, load_config
+from crowdplan.training.loop import validation_row
+from crowdplan.training.policy_average import average_payloads, payload_policy
+from crowdplan.training.run_logs import write_csv
+
+
+def validation_models(run: Path) -> list[tuple[int, Path]]:
+    """``(episode, path)`` of the run's kept validation models, in training order."""
+    folder = run / "validation_models"
+    models = sorted((int(p.stem.split("-")[1]), p) for p in folder.glob("episode-*.pt"))
+    if not models:
+        raise ValueError(
+            f"{folder} holds no validation models: train the run with "
+            "keep_validation_models: true (crowdplan train --keep-validation-models)"
+        )
+    return models
+
+
+def replay(
+    run: Path, average: int, config: TrainConfig
+) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
+    """Validation rows of the averaged policies and the best model (by mean reward, the first
+    of equals, as the training loop keeps it)."""
+    own_rows = _read_csv(run / "validation.csv")
+    steps = {int(row["episode"]): int(row["env_steps"]) for row in own_rows}
+    recent: list[dict[str, Any]] = []
+    rows, best, best_reward = [], None, float("-inf")
+    for episode, path in validation_models(run):
+        payload = load_payload(path)
+        payload["info"] = {k: v for k, v in payload["info"].items() if k != "success_rate"}
+        recent = [*recent, payload][-average:]
+        averaged = average_payloads(recent)
+        row = validation_row(payload_policy(averaged, config.name), config, episode, steps[episode])
+        rows.append(row)
+        if row["mean_reward"] > best_reward:
+            best_reward = row["mean_reward"]
+            best = {**averaged, "info": {**averaged["info"], "selected_at_episode": episode}}
+    return rows, best
+
+
+def write_averaged_run(run: Path, average: int, out: Path) -> list[dict[str, Any]]:
+    """The run folder ``policy_average: average`` would have made, in ``out`` (new or empty)."""
+    if out.exists() and any(out.iterdir()):
+        raise ValueError(f"{out} is not empty; give a new folder so that nothing is overwritten")
+    config = dataclasses.replace(
+        load_config(run / "config.yaml", legacy_defaults=True),
+        policy_average=average,
+        keep_validation_models=False,
+    )
+    rows, best = replay(run, average, config)
+    out.mkdir(parents=True, exist_ok=True)
+    for name in ("episodes.csv", "updates.csv"):
+        if (run / name).is_file():  # updates.csv is written from the first logged update on
+            shutil.copy2(run / name, out / name)
+    write_csv(out / "validation.csv", rows)
+    atomic_write(
+        out / "config.yaml", lambda f: yaml.safe_dump(config.to_dict(), f, sort_keys=False)
+    )
+    torch_save_atomic(out / "best_model.pt", best)
+    meta = json.loads((run / "meta.json").read_text())
+    meta["averaged_validation"] = {
+        "from_run": str(run),
+        "policy_average": average,
+        "validations_left_out": [
+            int(r["episode"])
+            for r in _read_csv(run / "validation.csv")
+            if int(r["episode"]) < rows[0]["episode"]
+        ],
+        "command": f"python -m crowdplan.analysis.averaged_validation {run} "
+        f"--average {average} --out {out}",
+    }
+    write_json(out / "meta.json", meta)
+    plot_training_curves(out)
+    return rows
+
+
+def _read_csv(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m crowdplan.analysis.averaged_validation", description=__doc__.split("\n")[0]
+    )
+    parser.add_argument("run", type=Path, help="run folder with validation_models/")
+    parser.add_argument(
+        "--average", type=int, required=True, help="policies averaged (policy_average), >= 2"
+    )
+    parser.add_argument("--out", type=Path, required=True, help="new run folder to write")
+    args = parser.parse_args(argv)
+    if args.average < 2:
+        parser.error(f"--average must be >= 2 (1 is the run itself), got {args.average}")
+    live = {int(r["episode"]): r for r in _read_csv(args.run / "validation.csv")}
+    rows = write_averaged_run(args.run, args.average, args.out)
+    print("| episode | success, own policy | success, averaged | reward, own | reward, averaged |")
+    print("|---:|---:|---:|---:|---:|")
+    for row in rows:
+        own = live[row["episode"]]
+        print(
+            f"| {row['episode']} | {float(own['success_rate']):.2f} | {row['success_rate']:.2f} "
+            f"| {float(own['mean_reward']):.3f} | {row['mean_reward']:.3f} |"
+        )
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
