@@ -128,3 +128,14 @@ def test_replay_refuses_a_run_without_validation_models_and_a_used_folder(tmp_pa
 def test_policy_average_below_one_is_refused():
     with pytest.raises(ValueError, match="policy_average"):
         config_from_dict({**TINY, "policy_average": 0})
+
+
+def test_cli_switches_averaging_on_when_resuming_and_refuses_zero(tmp_path, capsys):
+    run = _cli_train(tmp_path, "run", episodes=2)
+    resume = ["train", "--out", str(run), "--resume", "--episodes", "6", "-q"]
+    assert main([*resume, "--policy-average", "0"]) == 2
+    assert "policy_average" in capsys.readouterr().err
+    assert main([*resume, "--policy-average", "2", "--keep-validation-models"]) == 0
+    assert yaml.safe_load((run / "config.yaml").read_text())["policy_average"] == 2
+    last = sorted((run / "validation_models").glob("episode-*.pt"))[-1]
+    assert load_payload(last)["info"]["averaged_episodes"] == [4, 6]

@@ -384,6 +384,15 @@ def build_parser() -> argparse.ArgumentParser:
         "(default: the config's keep_validation_models)",
     )
     p.add_argument(
+        "--policy-average",
+        type=int,
+        default=None,
+        metavar="K",
+        help="validate, keep as best model and test the mean of the weights of the last K "
+        "validated policies, >= 1; training is unchanged and it may change on --resume "
+        "(default: the config's policy_average)",
+    )
+    p.add_argument(
         "--parallel-update",
         action=argparse.BooleanOptionalAction,
         default=None,

@@ -70,7 +70,8 @@ def _resumed_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
         raise ValueError(
             f"--resume continues the run in {args.out} with its own config.yaml, so "
             f"{' and '.join(fixed)} cannot apply; only --episodes, --val-interval, "
-            "--[no-]keep-validation-models and --[no-]parallel-update may change on resume "
+            "--[no-]keep-validation-models, --policy-average and --[no-]parallel-update may "
+            "change on resume "
             "(start a new --out to change the rest)"
         )
     run_dir = Path(args.out)
@@ -86,6 +87,7 @@ def train_from_cli(args: argparse.Namespace) -> int:
         "episodes": args.episodes,
         "val_interval": args.val_interval,
         "keep_validation_models": args.keep_validation_models,
+        "policy_average": args.policy_average,
     }
     config = dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
     if args.parallel_update is not None:
