@@ -9,8 +9,8 @@ import pytest
 import yaml
 
 from crowdplan.analysis import paper_tables
+from crowdplan.analysis.markdown_fill import fill_markdown
 from crowdplan.analysis.paper_tables import METHODS, paper_report, paper_values
-from crowdplan.analysis.report import fill_markdown
 from crowdplan.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -17,7 +17,7 @@ def test_every_world_evaluates_a_planner(tmp_path):
 
 
 def test_transfer_block_of_a_markdown_page(tmp_path):
-    from crowdplan.analysis.report import fill_markdown
+    from crowdplan.analysis.markdown_fill import fill_markdown
 
     out = tmp_path / "worlds"
     assert main(["orca", "straight", "--out", str(out), "--episodes", "2"]) == 0

@@ -224,7 +224,8 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from crowdplan.analysis.report import fill_markdown, report
+    from crowdplan.analysis.markdown_fill import fill_markdown
+    from crowdplan.analysis.report import report
 
     if args.out:
         if args.folders or args.fill or args.paper or args.seeds:

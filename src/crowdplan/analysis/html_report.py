@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from crowdplan.analysis import attention, curves, stats, strategies
-from crowdplan.analysis.report import TRAINING_HEADER, training_rows
-from crowdplan.evaluation import format_interval, format_value
+from crowdplan.analysis.report import TRAINING_HEADER, interval_cell, training_rows
+from crowdplan.evaluation import format_value
 from crowdplan.evaluation_records import (
     RecordedRun,
     load_recorded,
@@ -88,13 +88,6 @@ class Section:
 # ------------------------------------------------------------------ reading
 def _summary(folder: Path) -> dict:
     return json.loads((folder / "summary.json").read_text())
-
-
-def _cell(entry: dict | None, digits: int = 3) -> str:
-    if not entry:
-        return "n/a"
-    value = format_value(entry.get("value"), digits)
-    return f"{value} {format_interval(entry.get('ci95'), digits)}".rstrip()
 
 
 def _value(summary: dict, key: str, digits: int = 3) -> str:
@@ -212,8 +205,9 @@ def quantitative(runs: dict[str, RecordedRun]) -> Section:
     )
     for name, run in runs.items():
         s = run.summary
-        main.rows.append([name, str(len(run.episodes))] + [_cell(s.get(k)) for k, _ in keys])
-        soc.rows.append([name] + [_cell(s.get(k)) for k, _ in social])
+        cells = [interval_cell(s.get(k)) for k, _ in keys]
+        main.rows.append([name, str(len(run.episodes)), *cells])
+        soc.rows.append([name] + [interval_cell(s.get(k)) for k, _ in social])
     for row in paper_table("Test results"):
         method = row.get("method", "?")
         main.rows.append(

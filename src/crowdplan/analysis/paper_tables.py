@@ -25,7 +25,7 @@ from pathlib import Path
 import yaml
 
 from crowdplan.analysis.html_report import PAPER_PAGE, Table, paper_method, paper_table
-from crowdplan.analysis.report import _cell as cell
+from crowdplan.analysis.report import interval_cell as cell
 from crowdplan.analysis.report import read_run
 from crowdplan.analysis.stats import across_seeds
 from crowdplan.evaluation import format_value

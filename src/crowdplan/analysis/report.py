@@ -2,32 +2,17 @@
 
 ``crowdplan report DIR [DIR ...]`` finds every ``summary.json`` under the given folders and prints
 one row per evaluation; training runs (folders with ``meta.json`` + ``validation.csv``) also get
-their training time and last validation.
-
-``crowdplan report --fill FILE.md`` regenerates every block of a markdown page that sits between
-``<!-- crowdplan report DIR [DIR ...] -->`` and ``<!-- end report -->`` from those folders, so that
-the tables of docs/results.md are always the output of the command written above them. A block
-``<!-- crowdplan report --transfer DIR -->`` holds the planner x test-world table of a folder
-written by ``python -m crowdplan.analysis.test_worlds`` and its paired comparisons. A block
-``<!-- crowdplan report --paper METHOD=DIR ... -->`` holds the paper's comparison tables
-(:mod:`crowdplan.analysis.paper_tables`), one ``<!-- crowdplan report --seeds RUN ... -->`` the
-seed targets of one preset's runs (:mod:`crowdplan.analysis.seed_targets`).
+their training time and last validation. ``crowdplan report --fill FILE.md`` writes these and the
+other tables into a markdown page (:mod:`crowdplan.analysis.markdown_fill`).
 """
 
 from __future__ import annotations
 
 import csv
 import json
-import re
-import shlex
 from pathlib import Path
 
 from crowdplan.evaluation import format_interval, format_value
-from crowdplan.io import atomic_write
-
-_BLOCK = re.compile(
-    r"(?P<head><!-- crowdplan report (?P<args>[^>]*?) -->\n).*?(?P<end><!-- end report -->)", re.S
-)
 
 COLUMNS = [
     ("success_rate", "success", 3),
@@ -41,8 +26,10 @@ COLUMNS = [
 ]
 
 
-def _cell(entry: dict, digits: int) -> str:
+def interval_cell(entry: dict | None, digits: int = 3) -> str:
     """Value and interval as the CLI prints them: "n/a" when missing, no interval without one."""
+    if not entry:
+        return "n/a"
     value = format_value(entry.get("value"), digits)
     return f"{value} {format_interval(entry.get('ci95'), digits)}".rstrip()
 
@@ -76,7 +63,7 @@ def summary_table(paths: list[Path]) -> str:
             str(world.get("humans", "?")),
             str(data["episodes"]["value"]),
             _model_episode(path, meta),
-        ] + [_cell(data[key], digits) for key, _, digits in COLUMNS]
+        ] + [interval_cell(data[key], digits) for key, _, digits in COLUMNS]
         lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines)
 
@@ -188,42 +175,3 @@ def report(folders: list[str]) -> str:
     if runs:
         parts += ["", "### Training runs", "", training_table(runs)]
     return "\n".join(parts) + "\n"
-
-
-def fill_markdown(path: str | Path) -> int:
-    """Regenerate the report blocks of a markdown file in place; returns how many were filled."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"markdown file {path} does not exist")
-    text = path.read_text()
-    count = 0
-
-    def regenerate(match: re.Match) -> str:
-        nonlocal count
-        count += 1
-        args = shlex.split(match["args"])
-        if args[:1] == ["--transfer"]:
-            from crowdplan.analysis.html_report import transfer_tables
-
-            if len(args) != 2 or not Path(args[1]).is_dir():
-                raise ValueError(f"{path}: a --transfer block names one existing folder: {args}")
-            body = "\n".join(t.markdown() for t in transfer_tables(Path(args[1])))
-        elif args[:1] == ["--seeds"]:
-            from crowdplan.analysis.seed_targets import seed_table
-
-            body = seed_table(args[1:]).rstrip("\n")
-        elif args[:1] == ["--paper"]:
-            from crowdplan.analysis.paper_tables import paper_report
-
-            body = paper_report(args[1:])
-        else:
-            body = report(args)
-        return f"{match['head']}\n{body}\n{match['end']}"
-
-    new_text = _BLOCK.sub(regenerate, text)
-    if count == 0:
-        raise ValueError(
-            f"{path} has no '<!-- crowdplan report DIR ... -->' ... '<!-- end report -->' block"
-        )
-    atomic_write(path, lambda f: f.write(new_text))
-    return count
