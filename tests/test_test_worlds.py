@@ -34,14 +34,14 @@ def test_default_world_drops_the_training_mixture_but_keeps_the_action_interface
     import argparse
 
     from crowdplan.algos.orca_planner import OrcaPlanner
-    from crowdplan.cli import _world_config
     from crowdplan.config import WorldConfig
+    from crowdplan.world_args import world_from_args
 
     trained = WorldConfig(humans=10, humans_min=0, social_force_fraction=0.3, action_frame="world")
     args = argparse.Namespace(
         command="eval", option=["goal_rotation=90"], scenario=None, humans=None, default_world=True
     )
-    world = _world_config(args, OrcaPlanner(), trained)
+    world = world_from_args(args, OrcaPlanner(), trained)
     assert world == WorldConfig(action_frame="world", goal_rotation=90.0)
 
 

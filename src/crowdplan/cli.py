@@ -13,41 +13,11 @@ import time
 from pathlib import Path
 
 from crowdplan import __version__
-from crowdplan.config import SCENARIOS, WorldConfig
+from crowdplan.world_args import add_world_args, world_from_args
 
 EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 1, 2, 130, 141
 RESULT_FILES = ("summary.json", "episodes.jsonl")
 SPLIT_HELP = "test: cases 0..499 = seeds 1000..1499; val: cases 0..99 = seeds 0..99"
-
-
-def _add_world_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--scenario",
-        default=None,
-        choices=SCENARIOS,
-        help="crowd scenario (default: the model's training scenario, else circle_crossing)",
-    )
-    parser.add_argument(
-        "--humans",
-        type=int,
-        default=None,
-        help="number of humans, >= 0 (default: the model's training world, else 5)",
-    )
-    parser.add_argument(
-        "--option",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="world option, repeatable, e.g. visible_robot=true, kinematics=unicycle; keys and "
-        "ranges: crowdplan.config.WorldConfig (default: the model's training world, else the "
-        "WorldConfig defaults)",
-    )
-    parser.add_argument(
-        "--default-world",
-        action="store_true",
-        help="start from the default world (the paper's) instead of the model's training world; "
-        "the model keeps its kinematics, action frame and speeds (default: off)",
-    )
 
 
 def _add_policy_args(parser: argparse.ArgumentParser) -> None:
@@ -89,43 +59,6 @@ def _add_output_args(parser: argparse.ArgumentParser, what: str) -> None:
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress display")
 
 
-def _warn(command: str, message: str) -> None:
-    print(f"crowdplan {command}: warning: {message}", file=sys.stderr)
-
-
-def _world_config(args: argparse.Namespace, policy, base):
-    """The model's (or default) world with the command line's scenario, humans and options;
-    warns once per option that differs from the world a trained model was trained in (one line
-    in all with ``--default-world``, which asks for another world on purpose)."""
-    from crowdplan.policies import check_compatible, parse_options, world_differences
-
-    if args.default_world:
-        own = ("kinematics", "action_frame", "speed_sampling")
-        base = WorldConfig(**{key: getattr(base, key) for key in own})
-    changes = parse_options(args.option, own_flags=("scenario", "humans"))
-    if args.scenario is not None:
-        changes["scenario"] = args.scenario
-    if args.humans is not None:
-        changes["humans"] = args.humans
-    config = base.replace(**changes)
-    check_compatible(policy, config)
-    differences = world_differences(policy, config)
-    if args.default_world and differences:
-        # asked for explicitly: one line that names what differs, not one line per option
-        _warn(
-            args.command,
-            f"model {policy.name} was trained in another world ({', '.join(differences)} "
-            "differ); --default-world evaluates it in the paper's world",
-        )
-        return config
-    for key, (trained, now) in differences.items():
-        _warn(
-            args.command,
-            f"model {policy.name} was trained with {key}={trained}, this world has {key}={now}",
-        )
-    return config
-
-
 def cmd_eval(args: argparse.Namespace) -> int:
     from crowdplan import evaluation
     from crowdplan.io import check_output_folder
@@ -148,7 +81,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         files = RESULT_FILES + (("records.npz",) if args.record else ())
         check_output_folder(args.out, files, args.force)
     policy, base = load_policy(args.policy, args.model, args.shield, args.lookahead)
-    config = _world_config(args, policy, base)
+    config = world_from_args(args, policy, base)
 
     records: list = []
 
@@ -207,7 +140,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     seed = evaluation.SPLITS[args.split].seed(args.case)
     check_output_file(args.out, args.force, RENDER_SUFFIXES)
     policy, base = load_policy(args.policy, args.model, args.shield, args.lookahead)
-    config = _world_config(args, policy, base)
+    config = world_from_args(args, policy, base)
     (record,) = evaluation.run_episodes(policy, config, [seed], record_traces=True)
     title = f"{policy.name}, {args.split} case {args.case}: {record.outcome} at {record.time:.2f} s"
     save_render(record.trace, args.out, title=title)
@@ -276,7 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("eval", help="evaluate a planner on the fixed test (or validation) cases")
     _add_policy_args(p)
-    _add_world_args(p)
+    add_world_args(p)
     p.add_argument(
         "--episodes",
         type=int,
@@ -330,7 +263,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("render", help="draw one episode to a .gif or .png")
     _add_policy_args(p)
-    _add_world_args(p)
+    add_world_args(p)
     p.add_argument(
         "--case",
         type=int,

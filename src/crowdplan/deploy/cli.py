@@ -11,11 +11,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from crowdplan.deploy.manifest import MANIFEST_FILE
+from crowdplan.deploy.runtime_args import add_runtime_args, runtime_config
+from crowdplan.world_args import add_world_args, world_from_args
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
     """Register the deployment subcommands on the ``crowdplan`` parser."""
-    from crowdplan.cli import _add_world_args
     from crowdplan.deploy.export import DEFAULT_MAX_HUMANS
 
     p = sub.add_parser("export", help="write a trained model as ONNX + manifest for deployment")
@@ -34,11 +35,11 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--sim", action="store_true", help="the simulator stands in for the mocap")
     p.add_argument("--model", required=True, help="export folder, or a model (exported on the fly)")
-    _add_world_args(p)
+    add_world_args(p)
     p.add_argument("--episodes", type=int, default=500)
     p.add_argument("--split", choices=("test", "val"), default="test")
     p.add_argument("--out", default=None, help="folder for summary.json and episodes.jsonl")
-    _add_runtime_args(p)
+    add_runtime_args(p)
     g = p.add_argument_group("sensor model")
     g.add_argument("--position-noise", type=float, default=0.0, help="std of x, y noise (m)")
     g.add_argument("--yaw-noise", type=float, default=0.0, help="std of yaw noise (rad)")
@@ -53,30 +54,8 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("ros2", help="ROS 2 node: mocap poses in, Twist commands out")
     add_ros2_args(p)
-    _add_runtime_args(p)
+    add_runtime_args(p)
     p.set_defaults(func=cmd_ros2)
-
-
-def _add_runtime_args(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("runtime")
-    g.add_argument(
-        "--control-rate", type=float, default=None, help="Hz (default: 1 / the model's dt)"
-    )
-    g.add_argument("--max-pose-age", type=float, default=0.5, help="stale after this (s)")
-    g.add_argument("--max-jump-speed", type=float, default=5.0, help="faster is a jump (m/s)")
-    g.add_argument("--velocity-tau", type=float, default=0.0, help="velocity filter (s)")
-
-
-def runtime_config(args: argparse.Namespace, dt: float):
-    """The runtime settings of the command line (control rate default: the model's 1 / dt)."""
-    from crowdplan.deploy.runtime import RuntimeConfig
-
-    return RuntimeConfig(
-        control_rate=args.control_rate or 1.0 / dt,
-        max_pose_age=args.max_pose_age,
-        max_jump_speed=args.max_jump_speed,
-        velocity_tau=args.velocity_tau,
-    )
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -115,7 +94,6 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             "only --sim runs here; real robots are driven by `crowdplan ros2` (docs/deploy.md)"
         )
     from crowdplan import evaluation
-    from crowdplan.cli import _world_config
     from crowdplan.config import WorldConfig
     from crowdplan.deploy.onnx_policy import OnnxPolicy
     from crowdplan.deploy.simulate import (
@@ -139,7 +117,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory() as scratch:
         policy = OnnxPolicy(_export_folder(args.model, scratch))
     base = WorldConfig.from_dict(policy.manifest.world)
-    config = deployment_world(_world_config(args, policy, base), args.control_rate)
+    config = deployment_world(world_from_args(args, policy, base), args.control_rate)
     seeds = (
         evaluation.validation_seeds(args.episodes)
         if args.split == "val"

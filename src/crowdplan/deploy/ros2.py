@@ -198,8 +198,8 @@ def run_node(args: argparse.Namespace) -> int:
         import rclpy
     except ImportError as error:
         raise ValueError(f"{ROS_MISSING} ({error})") from error
-    from crowdplan.deploy.cli import runtime_config
     from crowdplan.deploy.onnx_policy import OnnxPolicy
+    from crowdplan.deploy.runtime_args import runtime_config
 
     policy = OnnxPolicy(args.model)
     manifest = policy.manifest
