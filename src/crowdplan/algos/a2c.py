@@ -32,7 +32,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from crowdplan.algos.base import Observation, Transitions, observation_features
+from crowdplan.algos.base import Observation, StepFeatures, Transitions
 from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
 from crowdplan.models import GreedyPolicy, load_weights, require_format
 from crowdplan.nets.heads import PolicyHead, ValueHead
@@ -178,9 +178,9 @@ class A2CAgent:
         self.optimizer = torch.optim.Adam(self.net.parameters(), lr=self.params.lr)
         self.generator = torch.Generator(device=device).manual_seed(config.seed + 1)
         self.unicycle = config.world.kinematics == "unicycle"
+        self.features = StepFeatures(self.unicycle)
         self.rollout: list[dict[str, np.ndarray]] = []
         self.n_updates = 0
-        self._features: Any = None  # of the observation the last act() saw
 
     def pretrain(self, log: Any) -> None:
         """A2C learns from its own experience only."""
@@ -188,16 +188,12 @@ class A2CAgent:
 
     @torch.no_grad()
     def act(self, obs: Observation, world: Any) -> np.ndarray:
-        self._features = feats = observation_features(obs, self.unicycle)
-        logits, _ = self.net(*_tensors(feats, self.device))
+        logits, _ = self.net(*_tensors(self.features.of_observation(obs), self.device))
         probs = torch.softmax(logits, dim=1)
         return torch.multinomial(probs, 1, generator=self.generator).squeeze(1).cpu().numpy()
 
     def observe(self, step: Transitions) -> None:
-        feats = self._features
-        if feats is None:
-            feats = observation_features(step.obs, self.unicycle)
-        nxt = observation_features(step.next_obs, self.unicycle)
+        feats, nxt = self.features.of_transition(step)
         values = (
             *feats,
             np.asarray(step.actions, dtype=np.int64),
@@ -207,7 +203,6 @@ class A2CAgent:
             *nxt,
         )
         self.rollout.append(dict(zip(_ROLLOUT_KEYS, values, strict=True)))
-        self._features = None
 
     def update(self) -> dict[str, float] | None:
         """One gradient step once the rollout holds ``n_steps`` steps; then a fresh rollout."""

@@ -29,6 +29,29 @@ def observation_features(obs: Observation, unicycle: bool) -> Features:
     return robot_centric(obs["robot"], obs["humans"], obs["mask"].astype(bool), unicycle)
 
 
+class StepFeatures:
+    """Features of the observation an agent last acted on, reused when that step's transition
+    arrives, so that each observation is encoded once."""
+
+    def __init__(self, unicycle: bool):
+        self.unicycle = unicycle
+        self._acted_on: Features | None = None
+
+    def of_observation(self, obs: Observation) -> Features:
+        """Features of ``obs``, kept for the transition that follows."""
+        self._acted_on = observation_features(obs, self.unicycle)
+        return self._acted_on
+
+    def of_transition(self, step: Transitions) -> tuple[Features, Features]:
+        """Features of ``step.obs`` (the kept ones where the agent acted on it) and of
+        ``step.next_obs``."""
+        feats = self._acted_on
+        if feats is None:
+            feats = observation_features(step.obs, self.unicycle)
+        self._acted_on = None
+        return feats, observation_features(step.next_obs, self.unicycle)
+
+
 @dataclass
 class Transitions:
     """One step of E environments, as every agent sees it.

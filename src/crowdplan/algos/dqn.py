@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from crowdplan.algos.base import Observation, Transitions, observation_features
+from crowdplan.algos.base import Observation, StepFeatures, Transitions
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
 from crowdplan.models import GreedyPolicy, load_weights, require_format
@@ -115,10 +115,10 @@ class DQNAgent:
         )
         self.rng = np.random.default_rng(config.seed + 2)
         self.unicycle = config.world.kinematics == "unicycle"
+        self.features = StepFeatures(self.unicycle)
         self.epsilon = self.params.epsilon_start
         self.update_credit = 0.0
         self.n_updates = 0
-        self._features: Any = None  # of the observation the last act() saw
 
     def pretrain(self, log: Any) -> None:
         """DQN learns from its own experience only."""
@@ -126,7 +126,7 @@ class DQNAgent:
 
     @torch.no_grad()
     def act(self, obs: Observation, world: Any) -> np.ndarray:
-        self._features = feats = observation_features(obs, self.unicycle)
+        feats = self.features.of_observation(obs)
         q, _ = self.q(*(torch.from_numpy(x).to(self.device) for x in feats))
         greedy = q.argmax(dim=1).cpu().numpy()
         explore = self.rng.random(len(greedy)) < self.epsilon
@@ -134,11 +134,8 @@ class DQNAgent:
         return np.where(explore, random, greedy)
 
     def observe(self, step: Transitions) -> None:
-        feats = self._features
-        if feats is None:
-            feats = observation_features(step.obs, self.unicycle)
-        self.buffer.add_step(feats, step, observation_features(step.next_obs, self.unicycle))
-        self._features = None
+        feats, next_feats = self.features.of_transition(step)
+        self.buffer.add_step(feats, step, next_feats)
         if len(self.buffer) >= self.params.learning_starts:
             self.update_credit += len(step.actions) * self.params.updates_per_step
 

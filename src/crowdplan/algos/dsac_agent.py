@@ -12,12 +12,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from crowdplan.algos.base import Observation, Transitions, observation_features
+from crowdplan.algos.base import Observation, StepFeatures, Transitions
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.dsac import DSAC
 from crowdplan.algos.imitation import collect_demonstrations, demonstration_seeds, fit_actions
 from crowdplan.config import to_dict
-from crowdplan.features import Features
 from crowdplan.models import MODEL_FORMAT, DSACPolicy, model_payload
 
 if TYPE_CHECKING:
@@ -120,9 +119,9 @@ class DSACAgent:
         self.rng = np.random.default_rng(config.seed + 2)
         self.generator = torch.Generator(device=device).manual_seed(config.seed + 3)
         self.unicycle = config.world.kinematics == "unicycle"
+        self.features = StepFeatures(self.unicycle)
         self.env_steps = 0
         self.update_credit = 0.0
-        self._features: Features | None = None  # of the observation the last act() saw
         self._entropy: np.ndarray | None = None  # of the policy that chose those actions
 
     def pretrain(self, log: Any) -> dict[str, float] | None:
@@ -145,7 +144,7 @@ class DSACAgent:
         return stats
 
     def act(self, obs: Observation, world: Any) -> np.ndarray:
-        self._features = feats = observation_features(obs, self.unicycle)
+        feats = self.features.of_observation(obs)
         num_envs = len(feats.robot)
         if self.env_steps < self.params.random_steps:
             self._entropy = np.full(num_envs, np.log(self.params.n_actions), np.float32)
@@ -156,12 +155,9 @@ class DSACAgent:
         return actions.cpu().numpy()
 
     def observe(self, step: Transitions) -> None:
-        feats = self._features
-        if feats is None:
-            feats = observation_features(step.obs, self.unicycle)
-        next_feats = observation_features(step.next_obs, self.unicycle)
+        feats, next_feats = self.features.of_transition(step)
         self.buffer.add_step(feats, step, next_feats, self._entropy)
-        self._features = self._entropy = None
+        self._entropy = None
         self.env_steps += len(step.actions)
         if len(self.buffer) >= self.params.learning_starts:
             self.update_credit += len(step.actions) * self.params.updates_per_step
