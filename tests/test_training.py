@@ -195,7 +195,8 @@ def test_shipped_presets_load():
         assert config.encoder.name == name and config.world.humans == 5
         assert (dsac.target_entropy, dsac.init_alpha) == (-162.0, 1.0)
     # the ALN preset with the twin critics' mean and the averaged validation policy
-    aln, avg = load_config("configs/lsa_dsac_aln.yaml"), load_config("configs/lsa_dsac_aln_avg.yaml")
+    aln = load_config("configs/lsa_dsac_aln.yaml")
+    avg = load_config("configs/lsa_dsac_aln_avg.yaml")
     assert avg.algo_config == dataclasses.replace(aln.algo_config, average_q=True)
     assert (avg.policy_average, avg.val_interval, avg.world) == (4, 100, aln.world)
     # the discount read as 0.95 per second of travel: 0.95 ** (dt * v_pref) per step
