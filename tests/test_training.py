@@ -197,7 +197,8 @@ def test_shipped_presets_load():
     # the ALN preset with the twin critics' mean and the averaged validation policy
     aln = load_config("configs/lsa_dsac_aln.yaml")
     avg = load_config("configs/lsa_dsac_aln_avg.yaml")
-    assert avg.algo_config == dataclasses.replace(aln.algo_config, average_q=True)
+    expected = dataclasses.replace(aln.algo_config, average_q=True, updates_per_step=0.5)
+    assert avg.algo_config == expected
     assert (avg.policy_average, avg.val_interval, avg.world) == (4, 100, aln.world)
     # the discount read as 0.95 per second of travel: 0.95 ** (dt * v_pref) per step
     config = load_config("configs/lsa_dsac_ent05_gsec.yaml")
