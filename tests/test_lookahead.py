@@ -11,7 +11,7 @@ import torch
 
 from crowdplan.config import WorldConfig
 from crowdplan.nets.value import make_value_network
-from crowdplan.sim import scenarios
+from crowdplan.sim import initial_state
 from crowdplan.sim.actions import N_ACTIONS
 from crowdplan.sim.lookahead import (
     Timing,
@@ -36,7 +36,7 @@ def _busy_world(config: WorldConfig) -> World:
     if config.humans:
         world.human_pos[1, 0] = world.robot_pos[1] + [0.7, 0.0]
         world.human_vel[1, 0] = 0.0
-        world.human_kind[1, 0] = scenarios.STATIC
+        world.human_kind[1, 0] = initial_state.STATIC
     world.steps[2] = config.max_steps - 1
     return world
 
@@ -44,7 +44,7 @@ def _busy_world(config: WorldConfig) -> World:
 def _stepped_copy(world: World, action: int, mode: str) -> tuple[World, StepResult]:
     shadow = copy.deepcopy(world)
     if mode == "constant_velocity":  # unsolved humans keep their velocity: constant velocity
-        shadow.human_kind[:] = scenarios.STATIC
+        shadow.human_kind[:] = initial_state.STATIC
     return shadow, shadow.step(np.full(world.num_envs, action, dtype=np.int64))
 
 

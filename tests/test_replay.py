@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from crowdplan.config import WorldConfig
-from crowdplan.sim import replay, scenarios
+from crowdplan.sim import initial_state, replay, scenarios
+from crowdplan.sim.initial_state import PlacementError
 from crowdplan.sim.replay import (
     ETH_SECONDS_PER_FRAME,
     HELD_OUT,
@@ -13,7 +14,6 @@ from crowdplan.sim.replay import (
     load_recording,
     place_case,
 )
-from crowdplan.sim.scenarios import PlacementError
 from crowdplan.sim.world import World
 
 
@@ -85,7 +85,7 @@ def test_replay_cases_are_deterministic_and_cross_the_flow():
         assert 3 <= a.humans <= 10
         np.testing.assert_array_equal(a.robot_pos, [0.0, -4.0])
         np.testing.assert_array_equal(a.robot_goal, [0.0, 4.0])
-        assert np.all(a.kinds() == scenarios.REPLAY)
+        assert np.all(a.kinds() == initial_state.REPLAY)
         # Each replayed pedestrian comes within 2 m of the robot's path at some step.
         near = (np.abs(a.track[..., 0]) < 2.0) & (np.abs(a.track[..., 1]) <= 4.0 + 2.0)
         assert np.all((near & a.track_present).any(axis=1))
@@ -122,7 +122,7 @@ def test_held_out_scenes_are_named_and_shipped():
 def test_replay_mixture_and_rotation():
     config = WorldConfig(humans=10, replay_fraction=0.5, random_goal_direction=True)
     kinds = [scenarios.generate(config, s).kinds() for s in range(2000, 2020)]
-    replayed = [bool(np.all(k == scenarios.REPLAY)) and len(k) > 0 for k in kinds]
+    replayed = [bool(np.all(k == initial_state.REPLAY)) and len(k) > 0 for k in kinds]
     assert 0 < sum(replayed) < 20
     world = World(config, 4)
     world.reset([2000, 2001, 2002, 2003])

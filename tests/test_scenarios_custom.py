@@ -9,7 +9,7 @@ from crowdplan.algos.orca_planner import OrcaPlanner
 from crowdplan.config import WorldConfig
 from crowdplan.features import robot_centric
 from crowdplan.nets.encoders import ENCODER_NAMES, EncoderConfig, make_encoder
-from crowdplan.sim import scenarios
+from crowdplan.sim import initial_state, scenarios
 from crowdplan.sim.env import CrowdNavEnv
 from crowdplan.sim.scenario_file import ScenarioFileError, load_scenes, save_scenes
 from crowdplan.sim.world import World
@@ -46,7 +46,7 @@ def test_file_round_trip(tmp_path):
         np.testing.assert_array_equal(a.human_v_pref, b.human_v_pref)
         np.testing.assert_array_equal(a.kinds(), b.kinds())
         np.testing.assert_array_equal(a.waits(), b.waits())
-    assert {scenarios.SOCIAL_FORCE, scenarios.STATIC, scenarios.WAITING} <= set(
+    assert {initial_state.SOCIAL_FORCE, initial_state.STATIC, initial_state.WAITING} <= set(
         np.concatenate([s.kinds() for s in states]).tolist()
     )
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from crowdplan.config import SocialForceConfig, WorldConfig
-from crowdplan.sim import scenarios
-from crowdplan.sim.scenarios import InitialState
+from crowdplan.sim import initial_state
+from crowdplan.sim.initial_state import InitialState
 from crowdplan.sim.socialforce import social_force_velocities
 from crowdplan.sim.world import World
 
@@ -88,7 +88,7 @@ def test_social_force_humans_in_the_world():
         human_goal=np.array([[3.0, 0.0], [0.0, 0.2]]),
         human_radius=np.array([0.3, 0.3]),
         human_v_pref=np.array([1.0, 1.0]),
-        human_kind=np.array([scenarios.SOCIAL_FORCE, scenarios.STATIC]),
+        human_kind=np.array([initial_state.SOCIAL_FORCE, initial_state.STATIC]),
     )
     world = World(WorldConfig(humans=2))
     world.reset_states([state])

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from crowdplan.config import WorldConfig
-from crowdplan.sim import scenarios
+from crowdplan.sim import initial_state, scenarios
 from crowdplan.sim.actions import N_ACTIONS, action_table, speed_levels
 from crowdplan.sim.world import (
     COLLISION,
@@ -205,7 +205,7 @@ def test_bad_config_is_named(changes, fragment):
 
 def test_unplaceable_crowd_gives_up_quickly():
     cfg = WorldConfig(humans=60, placement_tries=50)
-    with pytest.raises(scenarios.PlacementError, match="placement_tries"):
+    with pytest.raises(initial_state.PlacementError, match="placement_tries"):
         scenarios.generate(cfg, 0)
 
 

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from crowdplan.config import WorldConfig
-from crowdplan.sim.scenarios import PLACEMENT_MARGIN, REPLAY, InitialState, PlacementError
+from crowdplan.sim.initial_state import PLACEMENT_MARGIN, REPLAY, InitialState, PlacementError
 
 DATA_DIR = Path(__file__).resolve().parent / "data" / "ethucy"
 ETH_SECONDS_PER_FRAME = 0.4 / 6

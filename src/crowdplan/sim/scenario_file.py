@@ -26,7 +26,7 @@ import yaml
 
 from crowdplan.config import WorldConfig
 from crowdplan.io import atomic_write
-from crowdplan.sim.scenarios import HUMAN_KINDS, REPLAY, STATIC, WAITING, InitialState
+from crowdplan.sim.initial_state import HUMAN_KINDS, REPLAY, STATIC, WAITING, InitialState
 
 FILE_KINDS = tuple(k for k in HUMAN_KINDS if k != "replay")
 _ROBOT_KEYS = ("start", "goal", "heading")

@@ -22,7 +22,7 @@ import numba
 import numpy as np
 
 from crowdplan.config import WorldConfig
-from crowdplan.sim import orca, scenarios, socialforce
+from crowdplan.sim import initial_state, orca, scenarios, socialforce
 from crowdplan.sim.actions import action_table, action_velocities, check_actions
 from crowdplan.sim.orca import orca_velocities, preferred_velocities
 
@@ -92,12 +92,12 @@ _F_DT, _F_ROBOT_RADIUS, _F_ROBOT_V_PREF, _F_DISCOMFORT, _F_RADIUS_PAD = 0, 1, 2,
 _F_NEIGHBOR_DIST, _F_TIME_HORIZON = 5, 6
 _F_SF_TAU, _F_SF_A, _F_SF_B, _F_SF_LAM, _F_SF_SPEED_FACTOR = 7, 8, 9, 10, 11
 _I_MAX_NEIGHBORS, _I_MAX_STEPS, _I_UNICYCLE, _I_VISIBLE, _I_RESPAWN, _I_GOAL_FRAME = range(6)
-# Kind codes (scenarios.HUMAN_KINDS) as module constants, for the kernel.
+# Kind codes (initial_state.HUMAN_KINDS) as module constants, for the kernel.
 _SOCIAL_FORCE, _STATIC, _WAITING, _REPLAY = (
-    scenarios.SOCIAL_FORCE,
-    scenarios.STATIC,
-    scenarios.WAITING,
-    scenarios.REPLAY,
+    initial_state.SOCIAL_FORCE,
+    initial_state.STATIC,
+    initial_state.WAITING,
+    initial_state.REPLAY,
 )
 
 
@@ -470,7 +470,7 @@ class World:
     Arrays (public, read-only for callers): ``robot_pos`` (E, 2), ``robot_vel`` (E, 2),
     ``robot_theta`` (E,), ``robot_goal`` (E, 2), ``human_pos`` / ``human_vel`` / ``human_goal``
     (E, N, 2), ``human_radius`` / ``human_v_pref`` (E, N), ``human_kind`` (E, N) (codes of
-    ``scenarios.HUMAN_KINDS``), ``human_present`` (E, N) (absent humans are masked out of the
+    ``initial_state.HUMAN_KINDS``), ``human_present`` (E, N) (absent humans are masked out of the
     observation and never collide), ``steps`` (E,), ``seeds`` (E,) (-1 for a scene given by
     ``reset_states``).
     """
@@ -542,7 +542,7 @@ class World:
         self.reset_states(states, env_ids)
         self.seeds[list(env_ids)] = seeds
 
-    def reset_states(self, states: list[scenarios.InitialState], env_ids=None) -> None:
+    def reset_states(self, states: list[initial_state.InitialState], env_ids=None) -> None:
         """Start episodes from given initial states (the scenario protocol, docs/scenarios.md).
 
         Every state is checked first (a bad one raises and no environment is changed). A state
@@ -574,7 +574,7 @@ class World:
             self.human_pos[env, k:] = self.human_goal[env, k:] = 0.0
             self.human_radius[env, k:] = self.config.human_radius
             self.human_v_pref[env, k:] = self.config.human_v_pref
-            self.human_kind[env, k:] = scenarios.STATIC
+            self.human_kind[env, k:] = initial_state.STATIC
             self.human_wait[env, k:] = np.inf
             self.human_present[env, k:] = False
             self.track[env] = 0.0
@@ -582,7 +582,7 @@ class World:
             if init.track is not None:
                 self.track[env, :k] = init.track
                 self.track_present[env, :k] = init.track_present
-                replayed = init.kinds() == scenarios.REPLAY
+                replayed = init.kinds() == initial_state.REPLAY
                 self.human_present[env, :k] = ~replayed | init.track_present[:, 0]
             self.rotation[env] = init.rotation
             self.steps[env] = 0
@@ -795,7 +795,7 @@ class World:
             )
 
 
-def check_state(state: scenarios.InitialState, config: WorldConfig) -> None:
+def check_state(state: initial_state.InitialState, config: WorldConfig) -> None:
     """Refuse an initial state the world cannot play, naming the fix."""
     n = state.humans
     if n > config.humans:
@@ -823,12 +823,12 @@ def check_state(state: scenarios.InitialState, config: WorldConfig) -> None:
         if np.shape(value) != shape:
             raise ValueError(f"{name} must have shape {shape}, got {np.shape(value)}")
     kinds = state.kinds()
-    if np.any((kinds < 0) | (kinds >= len(scenarios.HUMAN_KINDS))):
-        raise ValueError(f"human_kind codes must be in 0..{len(scenarios.HUMAN_KINDS) - 1}")
-    if np.any(kinds == scenarios.REPLAY) and state.track is None:
+    if np.any((kinds < 0) | (kinds >= len(initial_state.HUMAN_KINDS))):
+        raise ValueError(f"human_kind codes must be in 0..{len(initial_state.HUMAN_KINDS) - 1}")
+    if np.any(kinds == initial_state.REPLAY) and state.track is None:
         raise ValueError("replayed humans (kind 'replay') need a track")
     if (
-        np.any(kinds == scenarios.REPLAY)
+        np.any(kinds == initial_state.REPLAY)
         and config.scenario != "replay"
         and (config.replay_fraction == 0)
     ):
