@@ -7,15 +7,15 @@ work), 130 interrupted (Ctrl-C), 141 output pipe closed (``crowdplan eval | head
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
 
 from crowdplan import __version__
+from crowdplan.command import run_command
+from crowdplan.train_args import add_train_args
 from crowdplan.world_args import add_world_args, world_from_args
 
-EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_BROKEN_PIPE = 1, 2, 130, 141
 RESULT_FILES = ("summary.json", "episodes.jsonl")
 SPLIT_HELP = "test: cases 0..499 = seeds 1000..1499; val: cases 0..99 = seeds 0..99"
 
@@ -283,70 +283,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "train", help="train a planner (DSAC, value RL, A2C, DQN) from a YAML config"
     )
-    p.add_argument(
-        "--config",
-        help="YAML config, e.g. configs/lsa_dsac.yaml (default: none; required for a new run)",
-    )
-    p.add_argument(
-        "--seed", type=int, default=None, help="training seed (default: the config's seed)"
-    )
-    p.add_argument(
-        "--humans",
-        type=int,
-        default=None,
-        help="number of humans, >= 0 (default: the config's world.humans)",
-    )
-    p.add_argument(
-        "--episodes",
-        type=int,
-        default=None,
-        help="episode budget, >= 1 (default: the config's episodes)",
-    )
-    p.add_argument(
-        "--val-interval",
-        type=int,
-        default=None,
-        help="episodes between validations, >= 1; may change on --resume "
-        "(default: the config's val_interval)",
-    )
-    p.add_argument(
-        "--keep-validation-models",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="write the greedy policy of every validation to validation_models/ in the run "
-        "folder, for python -m crowdplan.analysis.argmax_flips; may change on --resume "
-        "(default: the config's keep_validation_models)",
-    )
-    p.add_argument(
-        "--policy-average",
-        type=int,
-        default=None,
-        metavar="K",
-        help="validate, keep as best model and test the mean of the weights of the last K "
-        "validated policies, >= 1; training is unchanged and it may change on --resume "
-        "(default: the config's policy_average)",
-    )
-    p.add_argument(
-        "--parallel-update",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="critic and policy halves of each update on two threads (bitwise the same results; "
-        "may change on --resume) (default: the config's dsac.parallel_update)",
-    )
-    p.add_argument(
-        "--lookahead",
-        choices=("constant_velocity", "oracle"),
-        default=None,
-        help="value-network baselines: humans' next states in the one-step lookahead, propagated "
-        "at constant velocity or queried from the simulator (CrowdNav) (default: the config's "
-        "value_rl.lookahead)",
-    )
-    p.add_argument("--out", default=None, help="run folder (default: runs/<name>-s<seed>)")
-    p.add_argument("--resume", action="store_true", help="continue the run in --out")
-    p.add_argument(
-        "--no-progress", action="store_true", help="plain progress lines, no bar (as in a log file)"
-    )
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress display")
+    add_train_args(p)
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser(
@@ -421,38 +358,10 @@ def _show_defaults(parser: argparse.ArgumentParser) -> None:
             action.help = f"{action.help} ({note})" if action.help else f"({note})"
 
 
-def _silence_stdout() -> None:
-    """Point stdout at /dev/null so that flushing at exit cannot raise again on a closed pipe."""
-    try:
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-    except (OSError, ValueError):  # stdout without a file descriptor (e.g. captured in tests)
-        pass
-
-
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``crowdplan`` console script; returns the exit status."""
     args = build_parser().parse_args(argv)
-    prog = f"crowdplan {args.command}"
-    try:
-        import torch
-
-        torch.set_num_threads(1)
-        status = args.func(args)
-        sys.stdout.flush()  # a closed pipe shows here, where it is handled, not at exit
-        return status
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except BrokenPipeError:
-        _silence_stdout()
-        return EXIT_BROKEN_PIPE
-    except (ValueError, TypeError, FileNotFoundError) as error:
-        print(f"{prog}: error: {error}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except OSError as error:
-        print(f"{prog}: error: {error}", file=sys.stderr)
-        return EXIT_FAILED
+    return run_command(args.func, args, f"crowdplan {args.command}")
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ import signal
 import sys
 
 from crowdplan.backends import BACKENDS, JobInterrupted
+from crowdplan.command import EXIT_INTERRUPTED
 
 
 def add_command(sub: argparse._SubParsersAction) -> None:
@@ -60,7 +61,6 @@ def add_command(sub: argparse._SubParsersAction) -> None:
 def cmd_sweep(args: argparse.Namespace) -> int:
     from crowdplan.backends import make_backend
     from crowdplan.backends.sweep import expand, format_summary, parse_grid, parse_seeds, run_sweep
-    from crowdplan.cli import EXIT_INTERRUPTED
     from crowdplan.training import load_config
 
     if args.threads_per_trial < 1:

@@ -37,8 +37,10 @@ import yaml
 
 from crowdplan.analysis.stats import across_seeds
 from crowdplan.backends import Backend, JobInterrupted
+from crowdplan.command import EXIT_INTERRUPTED
 from crowdplan.evaluation import format_value
 from crowdplan.io import atomic_write, write_json
+from crowdplan.training.cli import main as train_main
 
 # Metrics of a trial, from its test cases when the config tests, else its last validation.
 TRIAL_METRICS = ("success_rate", "collision_rate", "timeout_rate", "time_to_goal", "mean_reward")
@@ -303,8 +305,6 @@ def run_trial(root: str, name: str) -> dict[str, Any]:
     Raises JobInterrupted when a signal stopped it after writing its checkpoint; any other
     failure is returned as ``{"trial": name, "error": ...}`` so that the other trials go on.
     """
-    from crowdplan.cli import main as crowdplan_main
-
     folder = SweepFolder(root)
     result_path = folder.result(name)
     if result_path.is_file():
@@ -315,23 +315,23 @@ def run_trial(root: str, name: str) -> dict[str, Any]:
         meta = run_dir / "meta.json"
         if meta.is_file():  # the last batch of episodes may end past the budget: never shrink it
             budget = max(budget, json.loads(meta.read_text())["episodes"])
-        argv = ["train", "--out", str(run_dir), "--resume", "--episodes", str(budget)]
+        argv = ["--out", str(run_dir), "--resume", "--episodes", str(budget)]
         argv.append("--no-progress")
     else:
         if run_dir.exists():
             shutil.rmtree(run_dir)  # started but stopped before its first checkpoint
-        argv = ["train", "--config", str(folder.config(name)), "--out", str(run_dir)]
+        argv = ["--config", str(folder.config(name)), "--out", str(run_dir)]
         argv.append("--no-progress")
     log = folder.log(name)
     log.parent.mkdir(parents=True, exist_ok=True)
     with open(log, "a") as out, redirect_stdout(out), redirect_stderr(out):
-        print(f"pid {os.getpid()} on {socket.gethostname()}: crowdplan {' '.join(argv)}")
+        print(f"pid {os.getpid()} on {socket.gethostname()}: crowdplan train {' '.join(argv)}")
         out.flush()
         try:
-            status = crowdplan_main(argv)
+            status = train_main(argv)
         except Exception as error:  # the other trials go on; the summary lists this one
             return {"trial": name, "error": f"{type(error).__name__}: {error}; see {log}"}
-    if status == 130:
+    if status == EXIT_INTERRUPTED:
         raise JobInterrupted(f"trial {name} was stopped; its checkpoint is in {run_dir}")
     if status != 0:
         return {"trial": name, "error": f"crowdplan train exited with status {status}; see {log}"}

@@ -10,7 +10,9 @@ from typing import Any
 import yaml
 
 from crowdplan import evaluation
+from crowdplan.command import run_command
 from crowdplan.io import atomic_write
+from crowdplan.train_args import add_train_args
 from crowdplan.training.config import TrainConfig, config_from_dict, load_config
 from crowdplan.training.loop import Trainer
 
@@ -124,3 +126,11 @@ def train_from_cli(args: argparse.Namespace) -> int:
         title = f"{config.name} (seed {config.seed}), best model, {config.test_episodes} test cases"
         print(evaluation.format_table(summary, title))
     return 0
+
+
+def main(argv: list[str]) -> int:
+    """``crowdplan train ARGV`` without the top-level command (what a sweep's trial runs);
+    returns the exit status."""
+    parser = argparse.ArgumentParser(prog="crowdplan train")
+    add_train_args(parser)
+    return run_command(train_from_cli, parser.parse_args(argv), "crowdplan train")
