@@ -28,7 +28,7 @@ def _with_algo_option(config: TrainConfig, field: str, value: Any, applies_to: s
 
 def _new_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
     if not args.config:
-        raise ValueError("--config is required for a new run (e.g. configs/lsa_dsac_ent05.yaml)")
+        raise ValueError("--config is required for a new run (e.g. configs/lsa_dsac_aln_avg.yaml)")
     config = load_config(args.config)
     if args.seed is not None:
         config = dataclasses.replace(config, seed=args.seed)
