@@ -1,0 +1,143 @@
+"""How a planner ends the episodes it does not finish: the last seconds of every timeout.
+
+A timeout is an episode that reached the time limit without reaching the goal or colliding. Its
+last :data:`WINDOW` seconds of robot positions decide how it ended:
+
+- ``frozen``: the robot travelled less than :data:`STILL` m in the window (it stood still);
+- ``cycling``: it travelled at least :data:`CYCLE_PATH` m but ended within :data:`RETURN` m of
+  where the window began (it moved back and forth in place);
+- ``moving``: anything else (still on its way, or wandering).
+
+Beside the split, each row gives the mean distance to the goal at the end, the share of timeouts
+that ended farther from the goal than the robot started (outside every state of a training run
+whose episodes all start at the same distance) and the share that ended with every human at
+rest (speed under :data:`AT_REST`, e.g. arrived at their goals)::
+
+    python -m crowdplan.analysis.timeouts MODEL... [--scenario square_crossing] [--humans 5]
+
+MODEL is anything ``crowdplan eval --model`` takes (a run folder, a model file, a shipped name);
+the episodes are the test cases, replayed with traces.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from crowdplan.config import WorldConfig
+from crowdplan.evaluation import TEST_CASES, EpisodeRecord, Trace, run_episodes, test_seeds
+from crowdplan.models import load_model_policy
+
+WINDOW = 5.0  # s
+STILL = 0.1  # m travelled in the window
+CYCLE_PATH = 1.0  # m travelled in the window
+RETURN = 0.5  # m from the window's first position
+AT_REST = 0.05  # m/s
+ENDINGS = ("frozen", "cycling", "moving")
+
+
+@dataclass(frozen=True)
+class Ending:
+    """How one timeout ended."""
+
+    kind: str  # one of ENDINGS
+    goal_distance: float  # m, at the last state
+    beyond_start: bool  # ended farther from the goal than it started
+    crowd_at_rest: bool  # every present human slower than AT_REST at the last state
+
+
+def ending(trace: Trace) -> Ending:
+    """Classify the end of one episode's trace (see the module docstring)."""
+    steps = max(1, round(WINDOW / trace.dt))
+    window = trace.robot_pos[-(steps + 1) :]
+    travelled = float(np.linalg.norm(np.diff(window, axis=0), axis=1).sum())
+    net = float(np.linalg.norm(window[-1] - window[0]))
+    if travelled < STILL:
+        kind = "frozen"
+    elif travelled >= CYCLE_PATH and net <= RETURN:
+        kind = "cycling"
+    else:
+        kind = "moving"
+    goal_distance = float(np.linalg.norm(trace.robot_goal - trace.robot_pos[-1]))
+    start_distance = float(np.linalg.norm(trace.robot_goal - trace.robot_pos[0]))
+    at_rest = True
+    if trace.human_vel is not None and trace.human_vel.shape[1] > 0:
+        speeds = np.linalg.norm(trace.human_vel[-1], axis=1)
+        present = (
+            np.ones(len(speeds), bool) if trace.human_present is None else trace.human_present[-1]
+        )
+        at_rest = bool((speeds[present] < AT_REST).all())
+    return Ending(kind, goal_distance, goal_distance > start_distance, at_rest)
+
+
+def timeout_endings(records: list[EpisodeRecord]) -> list[Ending]:
+    """The endings of the records that timed out (each must carry its trace)."""
+    endings = []
+    for record in records:
+        if record.outcome != "timeout":
+            continue
+        if record.trace is None:
+            raise ValueError(f"episode {record.seed} has no trace: run it with record_traces=True")
+        endings.append(ending(record.trace))
+    return endings
+
+
+def summary_row(name: str, records: list[EpisodeRecord]) -> list[str]:
+    """One table row: outcomes of the episodes and how their timeouts ended."""
+    n = len(records)
+    outcomes = Counter(r.outcome for r in records)
+    endings = timeout_endings(records)
+    kinds = Counter(e.kind for e in endings)
+    row = [name, str(n), f"{outcomes['goal'] / n:.3f}", f"{outcomes['timeout'] / n:.3f}"]
+    if not endings:
+        return row + ["-"] * (len(ENDINGS) + 3)
+    row += [f"{kinds[k] / len(endings):.2f}" for k in ENDINGS]
+    row.append(f"{np.mean([e.goal_distance for e in endings]):.2f}")
+    row.append(f"{np.mean([e.beyond_start for e in endings]):.2f}")
+    row.append(f"{np.mean([e.crowd_at_rest for e in endings]):.2f}")
+    return row
+
+
+HEADER = [
+    "model",
+    "episodes",
+    "success",
+    "timeout",
+    *(f"timeouts {k}" for k in ENDINGS),
+    "goal distance at the end (m)",
+    "ended beyond its start distance",
+    "crowd at rest at the end",
+]
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("models", nargs="+", help="run folders, model files or shipped names")
+    parser.add_argument(
+        "--scenario", default="square_crossing", choices=("circle_crossing", "square_crossing")
+    )
+    parser.add_argument("--humans", type=int, default=5, help="humans in the test world")
+    parser.add_argument("--episodes", type=int, default=500, help="test cases 0..N-1")
+    args = parser.parse_args(argv)
+    if not 1 <= args.episodes <= TEST_CASES:
+        parser.error(f"--episodes must be in 1..{TEST_CASES}, got {args.episodes}")
+    if args.humans < 0:
+        parser.error(f"--humans must be >= 0, got {args.humans}")
+    torch.set_num_threads(1)
+    print(f"{args.scenario}, {args.humans} humans, test cases 0..{args.episodes - 1}\n")
+    print("| " + " | ".join(HEADER) + " |")
+    print("|" + "---|" * len(HEADER))
+    for model in args.models:
+        policy, world = load_model_policy(model)
+        config: WorldConfig = dataclasses.replace(world, scenario=args.scenario, humans=args.humans)
+        records = run_episodes(policy, config, test_seeds(args.episodes), record_traces=True)
+        print("| " + " | ".join(summary_row(model, records)) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
