@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from tiny_runs import flat_parameters, train_tiny
 
 from crowdplan.algos.a2c import (
     A2C_MODEL_FORMAT,
@@ -39,15 +40,8 @@ TINY = {
 }
 
 
-def _train(tmp_path, name, episodes=6, **changes):
-    config = dataclasses.replace(config_from_dict(TINY), episodes=episodes, **changes)
-    trainer = Trainer(config, tmp_path / name, progress=False)
-    trainer.run()
-    return trainer
-
-
 def _weights(trainer):
-    return torch.cat([p.detach().flatten() for p in trainer.agent.net.parameters()])
+    return flat_parameters(trainer.agent.net)
 
 
 # ------------------------------------------------------------------ maths
@@ -98,8 +92,9 @@ def test_gae_mixes_the_td_errors_and_stops_at_episode_ends():
 
 
 def test_normalised_advantages_change_the_step_and_are_part_of_the_run(tmp_path):
-    plain = _train(tmp_path, "plain", episodes=2)
-    normalised = _train(
+    plain = train_tiny(TINY, tmp_path, "plain", episodes=2)
+    normalised = train_tiny(
+        TINY,
         tmp_path,
         "normalised",
         episodes=2,
@@ -193,17 +188,17 @@ def test_trains_without_humans(tmp_path):
 
 # ------------------------------------------------------------------ determinism and resume
 def test_same_seed_twice_is_identical_and_another_seed_differs(tmp_path):
-    a, b = _train(tmp_path, "a"), _train(tmp_path, "b")
+    a, b = train_tiny(TINY, tmp_path, "a"), train_tiny(TINY, tmp_path, "b")
     assert a.agent.n_updates > 0 and torch.equal(_weights(a), _weights(b))
     clock = "train_seconds"
     assert [{k: v for k, v in e.items() if k != clock} for e in a.episodes] == [
         {k: v for k, v in e.items() if k != clock} for e in b.episodes
     ]
-    assert not torch.equal(_weights(a), _weights(_train(tmp_path, "c", seed=1)))
+    assert not torch.equal(_weights(a), _weights(train_tiny(TINY, tmp_path, "c", seed=1)))
 
 
 def test_sigterm_mid_rollout_and_resume_is_exact(tmp_path, monkeypatch):
-    straight = _train(tmp_path, "straight", episodes=6)
+    straight = train_tiny(TINY, tmp_path, "straight", episodes=6)
     config = config_from_dict(TINY)
     killed = Trainer(config, tmp_path / "killed", progress=False)
     step, calls = killed._train_step, []
@@ -275,7 +270,7 @@ def test_bad_config_is_explained(data, fragment):
 
 
 def test_model_of_another_algorithm_is_refused(tmp_path):
-    a2c = _train(tmp_path, "a2c", episodes=2)
+    a2c = train_tiny(TINY, tmp_path, "a2c", episodes=2)
     payload = torch.load(a2c.run_dir / "final_model.pt", weights_only=True)
     assert payload["format"] == A2C_MODEL_FORMAT
     with pytest.raises(ValueError, match="not an LSTM-A2C model"):

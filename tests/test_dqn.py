@@ -5,6 +5,7 @@ import dataclasses
 import pytest
 import torch
 import yaml
+from tiny_runs import flat_parameters, train_tiny
 
 from crowdplan.algos.dqn import DQNPolicy, double_dqn_target, load_dqn_payload
 from crowdplan.cli import main
@@ -27,15 +28,8 @@ TINY = {
 }
 
 
-def _train(tmp_path, name, episodes=6, **changes):
-    config = dataclasses.replace(config_from_dict(TINY), episodes=episodes, **changes)
-    trainer = Trainer(config, tmp_path / name, progress=False)
-    trainer.run()
-    return trainer
-
-
 def _weights(trainer):
-    return torch.cat([p.detach().flatten() for p in trainer.agent.q.parameters()])
+    return flat_parameters(trainer.agent.q)
 
 
 def test_double_dqn_target_on_known_numbers():
@@ -49,7 +43,7 @@ def test_double_dqn_target_on_known_numbers():
 
 
 def test_epsilon_falls_linearly_over_episodes(tmp_path):
-    trainer = _train(tmp_path, "eps", episodes=2)
+    trainer = train_tiny(TINY, tmp_path, "eps", episodes=2)
     agent = trainer.agent
     agent.episodes_done(2)
     assert agent.epsilon == pytest.approx(1.0 + 0.5 * (0.05 - 1.0))
@@ -58,9 +52,9 @@ def test_epsilon_falls_linearly_over_episodes(tmp_path):
 
 
 def test_same_seed_twice_is_identical_and_resume_continues_exactly(tmp_path):
-    a, b = _train(tmp_path, "a"), _train(tmp_path, "b")
+    a, b = train_tiny(TINY, tmp_path, "a"), train_tiny(TINY, tmp_path, "b")
     assert a.agent.n_updates > 5 and torch.equal(_weights(a), _weights(b))
-    first = _train(tmp_path, "resumed", episodes=3)
+    first = train_tiny(TINY, tmp_path, "resumed", episodes=3)
     resumed = Trainer(dataclasses.replace(first.config, episodes=6), first.run_dir, False)
     resumed.restore(first.run_dir / "checkpoint.pt")
     resumed.run()
@@ -113,7 +107,7 @@ def test_bad_config_is_explained(data, fragment):
 
 
 def test_model_of_another_algorithm_is_refused(tmp_path):
-    run = _train(tmp_path, "run", episodes=2).run_dir
+    run = train_tiny(TINY, tmp_path, "run", episodes=2).run_dir
     payload = torch.load(run / "final_model.pt", weights_only=True)
     with pytest.raises(ValueError, match="not a DQN model"):
         load_dqn_payload({**payload, "format": "crowdplan-a2c-policy/1"}, run / "x.pt")

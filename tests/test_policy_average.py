@@ -8,6 +8,7 @@ import signal
 import pytest
 import torch
 import yaml
+from tiny_runs import train_tiny
 
 from crowdplan.analysis.averaged_validation import main as averaged_validation
 from crowdplan.cli import main
@@ -30,13 +31,6 @@ TINY = {
 }
 
 
-def _train(tmp_path, name, episodes=6, **changes):
-    config = dataclasses.replace(config_from_dict(TINY), episodes=episodes, **changes)
-    trainer = Trainer(config, tmp_path / name, progress=False, quiet=True)
-    trainer.run()
-    return trainer
-
-
 def test_average_of_payloads_means_the_weights_and_keeps_the_rest():
     def payload(value, episodes):
         weights = {"w": torch.full((2,), value), "steps": torch.tensor(episodes)}
@@ -50,7 +44,7 @@ def test_average_of_payloads_means_the_weights_and_keeps_the_rest():
         average_payloads([])
 
 
-def _cli_train(tmp_path, name, **changes):
+def _clitrain_tiny(TINY, tmp_path, name, **changes):
     config = tmp_path / f"{name}.yaml"
     config.write_text(yaml.safe_dump({**TINY, **changes}))
     assert main(["train", "--config", str(config), "--out", str(tmp_path / name), "-q"]) == 0
@@ -63,8 +57,8 @@ def _csv(path, skip=()):
 
 
 def test_averaging_never_changes_training_and_the_replay_matches_a_real_run(tmp_path):
-    own = _cli_train(tmp_path, "own", keep_validation_models=True)
-    averaging = _cli_train(tmp_path, "averaging", policy_average=2)
+    own = _clitrain_tiny(TINY, tmp_path, "own", keep_validation_models=True)
+    averaging = _clitrain_tiny(TINY, tmp_path, "averaging", policy_average=2)
     clock = ("train_seconds",)
     assert _csv(own / "episodes.csv", clock) == _csv(averaging / "episodes.csv", clock)
     own_final = load_payload(own / "final_model.pt")["actor"]
@@ -86,7 +80,7 @@ def test_averaging_never_changes_training_and_the_replay_matches_a_real_run(tmp_
 
 
 def test_a_stopped_run_resumes_with_the_policies_it_was_averaging(tmp_path, monkeypatch):
-    straight = _train(tmp_path, "straight", policy_average=3)
+    straight = train_tiny(TINY, tmp_path, "straight", policy_average=3)
     config = dataclasses.replace(config_from_dict(TINY), policy_average=3)
     stopped = Trainer(config, tmp_path / "stopped", progress=False, quiet=True)
     step, calls = stopped._train_step, []
@@ -110,12 +104,12 @@ def test_a_stopped_run_resumes_with_the_policies_it_was_averaging(tmp_path, monk
 
 
 def test_replay_refuses_a_run_without_validation_models_and_a_used_folder(tmp_path):
-    _cli_train(tmp_path, "plain", episodes=2)
+    _clitrain_tiny(TINY, tmp_path, "plain", episodes=2)
     with pytest.raises(ValueError, match="keep_validation_models"):
         averaged_validation(
             [str(tmp_path / "plain"), "--average", "2", "--out", str(tmp_path / "x")]
         )
-    _cli_train(tmp_path, "kept", episodes=2, keep_validation_models=True)
+    _clitrain_tiny(TINY, tmp_path, "kept", episodes=2, keep_validation_models=True)
     (tmp_path / "used").mkdir()
     (tmp_path / "used" / "notes.txt").write_text("mine")
     with pytest.raises(ValueError, match="not empty"):
@@ -131,7 +125,7 @@ def test_policy_average_below_one_is_refused():
 
 
 def test_cli_switches_averaging_on_when_resuming_and_refuses_zero(tmp_path, capsys):
-    run = _cli_train(tmp_path, "run", episodes=2)
+    run = _clitrain_tiny(TINY, tmp_path, "run", episodes=2)
     resume = ["train", "--out", str(run), "--resume", "--episodes", "6", "-q"]
     assert main([*resume, "--policy-average", "0"]) == 2
     assert "policy_average" in capsys.readouterr().err

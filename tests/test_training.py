@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from tiny_runs import flat_parameters, train_tiny, without_clock
 
 from crowdplan.training import Trainer, config_from_dict, load_config
 
@@ -29,35 +30,26 @@ TINY = {
 }
 
 
-def _train(tmp_path, name, episodes=6, **changes):
-    config = dataclasses.replace(config_from_dict(TINY), episodes=episodes, **changes)
-    trainer = Trainer(config, tmp_path / name, progress=False)
-    trainer.run()
-    return trainer
-
-
 def _weights(trainer):
-    return torch.cat([p.detach().flatten() for p in trainer.agent.core.actor.parameters()])
+    return flat_parameters(trainer.agent.core.actor)
 
 
 def test_same_seed_twice_is_identical(tmp_path):
-    a, b = _train(tmp_path, "a"), _train(tmp_path, "b")
+    a, b = train_tiny(TINY, tmp_path, "a"), train_tiny(TINY, tmp_path, "b")
     assert torch.equal(_weights(a), _weights(b))
-
-    def without_clock(rows):
-        return [{k: v for k, v in row.items() if k != "train_seconds"} for row in rows]
 
     assert without_clock(a.episodes) == without_clock(b.episodes)
 
 
 def test_different_seed_differs(tmp_path):
-    a, b = _train(tmp_path, "a"), _train(tmp_path, "b", seed=1)
+    a, b = train_tiny(TINY, tmp_path, "a"), train_tiny(TINY, tmp_path, "b", seed=1)
     assert not torch.equal(_weights(a), _weights(b))
 
 
 def test_resume_after_stop_continues_exactly(tmp_path):
-    straight = _train(tmp_path, "straight", episodes=6)
-    first = _train(tmp_path, "resumed", episodes=3)  # ends with a checkpoint, as a kill would
+    straight = train_tiny(TINY, tmp_path, "straight", episodes=6)
+    # a run of 3 episodes ends with a checkpoint, as a kill would
+    first = train_tiny(TINY, tmp_path, "resumed", episodes=3)
     resumed = Trainer(dataclasses.replace(first.config, episodes=6), tmp_path / "resumed", False)
     resumed.restore(tmp_path / "resumed" / "checkpoint.pt")
     resumed.run()
@@ -68,14 +60,14 @@ def test_resume_after_stop_continues_exactly(tmp_path):
 def test_run_records_the_commit_it_started_with(tmp_path, monkeypatch):
     versions = iter(["started-with", "committed-later"])
     monkeypatch.setattr("crowdplan.training.loop.git_hash", lambda: next(versions))
-    trainer = _train(tmp_path, "a", episodes=2)
+    trainer = train_tiny(TINY, tmp_path, "a", episodes=2)
     meta = json.loads((trainer.run_dir / "meta.json").read_text())
     assert meta["git"] == "started-with"
 
 
 def test_resume_with_other_validation_settings_and_update_threads_trains_identically(tmp_path):
-    straight = _train(tmp_path, "straight", episodes=8)
-    first = _train(tmp_path, "resumed", episodes=3)
+    straight = train_tiny(TINY, tmp_path, "straight", episodes=8)
+    first = train_tiny(TINY, tmp_path, "resumed", episodes=3)
     config = dataclasses.replace(config_from_dict(TINY), episodes=8, val_interval=3, val_humans=5)
     config.algo_config = dataclasses.replace(config.algo_config, parallel_update=True)
     resumed = Trainer(config, tmp_path / "resumed", False)
@@ -97,7 +89,9 @@ def test_validation_runs_with_val_humans(tmp_path, monkeypatch):
         return run_episodes(policy, world, seeds, *args, **kwargs)
 
     monkeypatch.setattr(evaluation, "run_episodes", recording)
-    trainer = _train(tmp_path, "a", episodes=2, val_interval=1, val_episodes=2, val_humans=0)
+    trainer = train_tiny(
+        TINY, tmp_path, "a", episodes=2, val_interval=1, val_episodes=2, val_humans=0
+    )
     assert humans and set(humans) == {0} and trainer.config.world.humans == 3
 
 
@@ -114,11 +108,11 @@ def test_demonstrations_and_behaviour_cloning_warm_start_resume_exactly(tmp_path
     resumed.restore(tmp_path / "resumed" / "checkpoint.pt")
     resumed.run()
     assert torch.equal(_weights(straight), _weights(resumed))
-    assert not torch.equal(_weights(straight), _weights(_train(tmp_path, "paper")))
+    assert not torch.equal(_weights(straight), _weights(train_tiny(TINY, tmp_path, "paper")))
 
 
 def test_sigterm_checkpoints_mid_episode_and_resume_is_exact(tmp_path, monkeypatch):
-    straight = _train(tmp_path, "straight", episodes=6)
+    straight = train_tiny(TINY, tmp_path, "straight", episodes=6)
     config = dataclasses.replace(config_from_dict(TINY), episodes=6)
     killed = Trainer(config, tmp_path / "killed", progress=False)
     step, calls = killed._train_step, []
@@ -140,7 +134,7 @@ def test_sigterm_checkpoints_mid_episode_and_resume_is_exact(tmp_path, monkeypat
 
 
 def test_corrupted_checkpoint_is_reported(tmp_path):
-    trainer = _train(tmp_path, "run", episodes=2)
+    trainer = train_tiny(TINY, tmp_path, "run", episodes=2)
     path = tmp_path / "run" / "checkpoint.pt"
     path.write_bytes(path.read_bytes()[:1000])
     with pytest.raises(ValueError, match="unreadable or corrupted"):
@@ -148,7 +142,7 @@ def test_corrupted_checkpoint_is_reported(tmp_path):
 
 
 def test_checkpoint_from_another_encoder_is_refused(tmp_path):
-    trainer = _train(tmp_path, "run", episodes=2)
+    trainer = train_tiny(TINY, tmp_path, "run", episodes=2)
     other = config_from_dict({**TINY, "encoder": {"name": "sa"}})
     with pytest.raises(ValueError, match="different config"):
         Trainer(other, tmp_path / "run", False).restore(tmp_path / "run" / "checkpoint.pt")
@@ -215,7 +209,7 @@ def test_update_to_data_ratio(tmp_path):
 
 
 def test_replay_buffer_holds_the_entropy_of_the_policy_that_acted(tmp_path):
-    trainer = _train(tmp_path, "entropy", episodes=2)
+    trainer = train_tiny(TINY, tmp_path, "entropy", episodes=2)
     buffer = trainer.agent.buffer
     stored = buffer.data["behaviour_entropy"][: len(buffer)]
     random_steps = TINY["random_steps"]

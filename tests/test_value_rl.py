@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from tiny_runs import flat_parameters, train_tiny, without_clock
 
 from crowdplan import evaluation
 from crowdplan.algos.value_rl import load_value_rl_payload
@@ -140,7 +141,7 @@ def _cache_matches_the_target_network(agent) -> None:
 
 
 def test_cached_target_values_follow_new_transitions_and_target_copies(tmp_path):
-    agent = _train(tmp_path, "run", episodes=4).agent
+    agent = train_tiny(TINY, tmp_path, "run", episodes=4).agent
     agent.batch_credit = 1
     agent.update()
     _cache_matches_the_target_network(agent)
@@ -161,33 +162,25 @@ def test_cached_target_values_follow_new_transitions_and_target_copies(tmp_path)
 
 # ---------------------------------------------------------------------- runs
 # ---------------------------------------------------------------------- runs
-def _train(tmp_path, name, episodes=6, **changes):
-    config = dataclasses.replace(config_from_dict(TINY), episodes=episodes, **changes)
-    trainer = Trainer(config, tmp_path / name, progress=False)
-    trainer.run()
-    return trainer
 
 
 def _weights(trainer):
-    return torch.cat([p.detach().flatten() for p in trainer.agent.net.parameters()])
-
-
-def _without_clock(rows):
-    return [{k: v for k, v in row.items() if k != "train_seconds"} for row in rows]
+    return flat_parameters(trainer.agent.net)
 
 
 def test_same_seed_twice_is_identical_and_another_seed_differs(tmp_path):
-    a, b = _train(tmp_path, "a"), _train(tmp_path, "b")
+    a, b = train_tiny(TINY, tmp_path, "a"), train_tiny(TINY, tmp_path, "b")
     assert torch.equal(_weights(a), _weights(b))
-    assert _without_clock(a.episodes) == _without_clock(b.episodes)
+    assert without_clock(a.episodes) == without_clock(b.episodes)
     assert a.agent.n_updates > 0
-    c = _train(tmp_path, "c", seed=1)
+    c = train_tiny(TINY, tmp_path, "c", seed=1)
     assert not torch.equal(_weights(a), _weights(c))
 
 
 def test_resume_after_stop_continues_exactly(tmp_path):
-    straight = _train(tmp_path, "straight", episodes=6)
-    first = _train(tmp_path, "resumed", episodes=3)  # ends with a checkpoint, as a kill would
+    straight = train_tiny(TINY, tmp_path, "straight", episodes=6)
+    # a run of 3 episodes ends with a checkpoint, as a kill would
+    first = train_tiny(TINY, tmp_path, "resumed", episodes=3)
     resumed = Trainer(dataclasses.replace(first.config, episodes=6), tmp_path / "resumed", False)
     resumed.restore(tmp_path / "resumed" / "checkpoint.pt")
     resumed.run()
@@ -196,7 +189,7 @@ def test_resume_after_stop_continues_exactly(tmp_path):
         torch.cat([p.flatten() for p in straight.agent.target.parameters()]),
         torch.cat([p.flatten() for p in resumed.agent.target.parameters()]),
     )
-    assert _without_clock(straight.episodes) == _without_clock(resumed.episodes)
+    assert without_clock(straight.episodes) == without_clock(resumed.episodes)
 
 
 def test_no_demonstrations_starts_rl_from_scratch(tmp_path):

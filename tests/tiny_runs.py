@@ -1,0 +1,28 @@
+"""Helpers of the tests that train tiny runs through the real training loop."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import torch
+
+from crowdplan.training import Trainer, config_from_dict
+
+
+def train_tiny(base: dict, tmp_path: Path, name: str, episodes: int = 6, **changes) -> Trainer:
+    """Train the config ``base`` (a YAML-like dict) with ``changes`` into ``tmp_path / name``."""
+    config = dataclasses.replace(config_from_dict(base), episodes=episodes, **changes)
+    trainer = Trainer(config, tmp_path / name, progress=False, quiet=True)
+    trainer.run()
+    return trainer
+
+
+def flat_parameters(module: torch.nn.Module) -> torch.Tensor:
+    """Every parameter of ``module`` in one flat tensor, for exact comparisons."""
+    return torch.cat([p.detach().flatten() for p in module.parameters()])
+
+
+def without_clock(rows: list[dict]) -> list[dict]:
+    """Episode log rows without their wall-clock column (the only one that may differ)."""
+    return [{k: v for k, v in row.items() if k != "train_seconds"} for row in rows]
