@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from tiny_runs import flat_parameters, train_tiny
+from tiny_runs import flat_parameters, restored, train_tiny
 
 from crowdplan.algos.a2c import (
     A2C_MODEL_FORMAT,
@@ -212,8 +212,7 @@ def test_sigterm_mid_rollout_and_resume_is_exact(tmp_path, monkeypatch):
     monkeypatch.setattr(killed, "_train_step", step_then_signal)
     assert killed.run() is False
     assert len(killed.agent.rollout) == 24 % 7
-    resumed = Trainer(config, tmp_path / "killed", progress=False)
-    resumed.restore(tmp_path / "killed" / "checkpoint.pt")
+    resumed = restored(config, tmp_path / "killed")
     assert len(resumed.agent.rollout) == 24 % 7
     assert resumed.run() is True
     assert torch.equal(_weights(straight), _weights(resumed))

@@ -5,12 +5,12 @@ import dataclasses
 import pytest
 import torch
 import yaml
-from tiny_runs import flat_parameters, train_tiny
+from tiny_runs import flat_parameters, restored, train_tiny
 
 from crowdplan.algos.dqn import DQNPolicy, double_dqn_target, load_dqn_payload
 from crowdplan.cli import main
 from crowdplan.models import load_model_policy
-from crowdplan.training import Trainer, config_from_dict, load_config
+from crowdplan.training import config_from_dict, load_config
 
 TINY = {
     "name": "tiny_dqn",
@@ -55,8 +55,7 @@ def test_same_seed_twice_is_identical_and_resume_continues_exactly(tmp_path):
     a, b = train_tiny(TINY, tmp_path, "a"), train_tiny(TINY, tmp_path, "b")
     assert a.agent.n_updates > 5 and torch.equal(_weights(a), _weights(b))
     first = train_tiny(TINY, tmp_path, "resumed", episodes=3)
-    resumed = Trainer(dataclasses.replace(first.config, episodes=6), first.run_dir, False)
-    resumed.restore(first.run_dir / "checkpoint.pt")
+    resumed = restored(dataclasses.replace(first.config, episodes=6), first.run_dir)
     resumed.run()
     assert torch.equal(_weights(a), _weights(resumed))
     assert resumed.agent.epsilon == a.agent.epsilon

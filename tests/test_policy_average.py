@@ -8,7 +8,7 @@ import signal
 import pytest
 import torch
 import yaml
-from tiny_runs import train_tiny
+from tiny_runs import restored, train_tiny
 
 from crowdplan.analysis.averaged_validation import main as averaged_validation
 from crowdplan.cli import main
@@ -93,8 +93,7 @@ def test_a_stopped_run_resumes_with_the_policies_it_was_averaging(tmp_path, monk
 
     monkeypatch.setattr(stopped, "_train_step", step_then_signal)
     assert stopped.run() is False
-    resumed = Trainer(config, tmp_path / "stopped", progress=False, quiet=True)
-    resumed.restore(tmp_path / "stopped" / "checkpoint.pt")
+    resumed = restored(config, tmp_path / "stopped")
     assert resumed.run() is True
 
     def rewards(trainer):

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from tiny_runs import flat_parameters, train_tiny, without_clock
+from tiny_runs import flat_parameters, restored, train_tiny, without_clock
 
 from crowdplan.training import Trainer, config_from_dict, load_config
 
@@ -50,8 +50,7 @@ def test_resume_after_stop_continues_exactly(tmp_path):
     straight = train_tiny(TINY, tmp_path, "straight", episodes=6)
     # a run of 3 episodes ends with a checkpoint, as a kill would
     first = train_tiny(TINY, tmp_path, "resumed", episodes=3)
-    resumed = Trainer(dataclasses.replace(first.config, episodes=6), tmp_path / "resumed", False)
-    resumed.restore(tmp_path / "resumed" / "checkpoint.pt")
+    resumed = restored(dataclasses.replace(first.config, episodes=6), tmp_path / "resumed")
     resumed.run()
     assert torch.equal(_weights(straight), _weights(resumed))
     assert [e["seed"] for e in straight.episodes] == [e["seed"] for e in resumed.episodes]
@@ -70,8 +69,7 @@ def test_resume_with_other_validation_settings_and_update_threads_trains_identic
     first = train_tiny(TINY, tmp_path, "resumed", episodes=3)
     config = dataclasses.replace(config_from_dict(TINY), episodes=8, val_interval=3, val_humans=5)
     config.algo_config = dataclasses.replace(config.algo_config, parallel_update=True)
-    resumed = Trainer(config, tmp_path / "resumed", False)
-    resumed.restore(tmp_path / "resumed" / "checkpoint.pt")
+    resumed = restored(config, tmp_path / "resumed")
     resumed.run()
     assert torch.equal(_weights(straight), _weights(resumed))  # validation never steers training
     # the first leg validated where it ended; then every 3 episodes from there on
@@ -104,8 +102,7 @@ def test_demonstrations_and_behaviour_cloning_warm_start_resume_exactly(tmp_path
     assert meta["pretrain"]["demo_transitions"] > 0 and 0 <= meta["pretrain"]["bc_accuracy"] <= 1
     first = Trainer(dataclasses.replace(config, episodes=3), tmp_path / "resumed", False)
     first.run()
-    resumed = Trainer(config, tmp_path / "resumed", progress=False)
-    resumed.restore(tmp_path / "resumed" / "checkpoint.pt")
+    resumed = restored(config, tmp_path / "resumed")
     resumed.run()
     assert torch.equal(_weights(straight), _weights(resumed))
     assert not torch.equal(_weights(straight), _weights(train_tiny(TINY, tmp_path, "paper")))
@@ -126,8 +123,7 @@ def test_sigterm_checkpoints_mid_episode_and_resume_is_exact(tmp_path, monkeypat
     monkeypatch.setattr(killed, "_train_step", step_then_signal)
     assert killed.run() is False
     assert len(calls) == 23 and killed.env_steps == 23 * config.num_envs
-    resumed = Trainer(config, tmp_path / "killed", progress=False)
-    resumed.restore(tmp_path / "killed" / "checkpoint.pt")
+    resumed = restored(config, tmp_path / "killed")
     assert resumed.run() is True
     assert torch.equal(_weights(straight), _weights(resumed))
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers restored

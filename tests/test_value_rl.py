@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 import yaml
-from tiny_runs import flat_parameters, train_tiny, without_clock
+from tiny_runs import flat_parameters, restored, train_tiny, without_clock
 
 from crowdplan import evaluation
 from crowdplan.algos.value_rl import load_value_rl_payload
@@ -181,8 +181,7 @@ def test_resume_after_stop_continues_exactly(tmp_path):
     straight = train_tiny(TINY, tmp_path, "straight", episodes=6)
     # a run of 3 episodes ends with a checkpoint, as a kill would
     first = train_tiny(TINY, tmp_path, "resumed", episodes=3)
-    resumed = Trainer(dataclasses.replace(first.config, episodes=6), tmp_path / "resumed", False)
-    resumed.restore(tmp_path / "resumed" / "checkpoint.pt")
+    resumed = restored(dataclasses.replace(first.config, episodes=6), tmp_path / "resumed")
     resumed.run()
     assert torch.equal(_weights(straight), _weights(resumed))
     assert torch.equal(

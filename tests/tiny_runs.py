@@ -7,7 +7,7 @@ from pathlib import Path
 
 import torch
 
-from crowdplan.training import Trainer, config_from_dict
+from crowdplan.training import TrainConfig, Trainer, config_from_dict
 
 
 def train_tiny(base: dict, tmp_path: Path, name: str, episodes: int = 6, **changes) -> Trainer:
@@ -26,3 +26,10 @@ def flat_parameters(module: torch.nn.Module) -> torch.Tensor:
 def without_clock(rows: list[dict]) -> list[dict]:
     """Episode log rows without their wall-clock column (the only one that may differ)."""
     return [{k: v for k, v in row.items() if k != "train_seconds"} for row in rows]
+
+
+def restored(config: TrainConfig, run_dir: Path) -> Trainer:
+    """A trainer of ``config`` restored from the checkpoint in ``run_dir``, not yet run."""
+    trainer = Trainer(config, run_dir, progress=False, quiet=True)
+    trainer.restore(run_dir / "checkpoint.pt")
+    return trainer
