@@ -197,8 +197,14 @@ def test_fill_block_and_cli(runs, tmp_path, monkeypatch, capsys):
 @pytest.mark.parametrize(
     ("dsac", "trained_with"),
     [
-        ({"target_entropy_scale": 0.5, "n_actions": 81}, "5 humans, target entropy 0.5 log 81"),
-        ({"target_entropy_scale": 0.98, "target_entropy": -162.0}, "5 humans, target entropy -162"),
+        (
+            {"target_entropy_scale": 0.5, "n_actions": 81},
+            "5 humans, target entropy 0.5 log 81 (preset rg-s0)",
+        ),
+        (
+            {"target_entropy_scale": 0.98, "target_entropy": -162.0},
+            "5 humans, target entropy -162 (preset rg-s0)",
+        ),
     ],
 )
 def test_a_dsac_run_says_its_target_entropy(tmp_path, dsac, trained_with):

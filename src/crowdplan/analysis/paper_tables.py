@@ -218,6 +218,8 @@ def _training(run: Run) -> str:
     dsac = run.config.get("dsac") if run.config.get("algo", "dsac") == "dsac" else None
     if dsac:  # the paper leaves it out; docs/training.md compares the readings
         text += f", target entropy {_target_entropy(dsac)}"
+        if run.config.get("name"):  # the preset holds the rest of the recipe
+            text += f" (preset {run.config['name']})"
     val_humans = run.config.get("val_humans")
     if val_humans is not None and val_humans != humans:
         text += f", validated with {val_humans}"  # table II's reward is from that world
