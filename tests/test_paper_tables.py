@@ -133,6 +133,12 @@ def test_rows_from_result_folders(runs, tmp_path):
     inside = "worse, the paper's value inside our 95% interval (LSA-DSAC)"
     assert f"{inside}; worse than the paper (ORCA)" in notes
     assert "no result yet (CADRL, LSTM-RL, LSTM-A2C, RG-DSAC)" in notes
+    # several seeds: compared with the interval over seeds that table II prints (SARL 0.4, 0.6)
+    assert (
+        "Table II, converged reward: as good as the paper or better (LSA-DSAC); "
+        + inside.replace("LSA-DSAC", "SARL")
+        in notes
+    )
 
 
 def test_a_run_validated_in_another_world_says_so(runs, tmp_path):

@@ -411,9 +411,16 @@ def _estimate(group: list[Run], key: str, scenario: str = "circle") -> Estimate:
     return s.mean, s.ci95
 
 
-def _mean(values: list[float | None]) -> Estimate:
+def _over_runs(values: list[float | None]) -> Estimate:
+    """A per-run quantity of a method: one run's value, or the mean over runs with the interval
+    the tables print beside it."""
     known = [v for v in values if v is not None]
-    return (sum(known) / len(known) if known else None), None
+    if not known:
+        return None, None
+    if len(values) == 1:
+        return known[0], None
+    s = across_seeds(known, (-math.inf, math.inf))
+    return s.mean, s.ci95
 
 
 def _compare_line(
@@ -460,7 +467,7 @@ def reading_notes(runs: dict[str, list[Run]], paper: dict) -> str:
         ),
         _compare_line(
             "Table II, converged reward",
-            {m: _mean([r.converged_reward for r in g]) for m, g in runs.items()},
+            {m: _over_runs([r.converged_reward for r in g]) for m, g in runs.items()},
             {m: _paper_float(paper["II"].get(m)) for m in METHODS},
             higher=True,
         ),
@@ -472,7 +479,7 @@ def reading_notes(runs: dict[str, list[Run]], paper: dict) -> str:
         ),
         _compare_line(
             "Table IX, change of success (smaller is more robust)",
-            {m: _mean([r.robustness() for r in g]) for m, g in runs.items()},
+            {m: _over_runs([r.robustness() for r in g]) for m, g in runs.items()},
             {m: paper_robustness(paper, m) for m in METHODS},
             higher=False,
         ),
