@@ -106,11 +106,13 @@ class SARL(ValueNetwork):
         # f_e's first layer is W [s_r, o_i] = W_r s_r + W_o o_i; f_a's first layer on
         # [e_i, mean] is W_e e_i + W_m mean; and f_h's last (linear) layer commutes with the
         # attention-weighted sum. The first layers of f_a and f_h that read e_i run as one.
+        # The per-pair activations (81 x E x N rows in a batched lookahead) are updated in place:
+        # the same values, without allocating each large buffer twice.
         humans = humans.masked_fill(~mask.unsqueeze(-1), 0.0)
         first, second = self.f_e[0], self.f_e[2]
         x = F.linear(humans, first.weight[:, ROBOT_DIM:])
-        x = torch.relu(x + F.linear(robot, first.weight[:, :ROBOT_DIM], first.bias).unsqueeze(1))
-        e = torch.relu(second(x))  # (B, N, 100)
+        x.add_(F.linear(robot, first.weight[:, :ROBOT_DIM], first.bias).unsqueeze(1)).relu_()
+        e = second(x).relu_()  # (B, N, 100)
         weights = mask.unsqueeze(-1).to(e.dtype)
         mean = (e * weights).sum(dim=1) / weights.sum(dim=1).clamp(min=1.0)
         a_in, h_in = self.f_a[0], self.f_h[0]
@@ -120,9 +122,9 @@ class SARL(ValueNetwork):
             torch.cat([a_in.weight[:, : e.shape[-1]], h_in.weight]),
             torch.cat([a_in.bias, h_in.bias]),
         )
-        a_hidden = torch.relu(
+        a_hidden = (
             joint[..., :width] + F.linear(mean, a_in.weight[:, e.shape[-1] :]).unsqueeze(1)
-        )
+        ).relu_()
         scores = self.f_a[2:](a_hidden).squeeze(-1)
         attention = masked_softmax(scores, mask)
         pooled = (attention.unsqueeze(-1) * torch.relu(joint[..., width:])).sum(dim=1)
