@@ -96,3 +96,9 @@ def test_cli_rejects_an_episode_count_outside_the_test_split(capsys):
     with pytest.raises(SystemExit):
         timeouts.main(["cadrl", "--episodes", "0"])
     assert "--episodes must be in 1..500" in capsys.readouterr().err
+
+
+def test_cli_names_a_model_it_cannot_find(capsys):
+    with pytest.raises(SystemExit):
+        timeouts.main(["cadrl", "no-such-model"])
+    assert "no model found at 'no-such-model'" in capsys.readouterr().err

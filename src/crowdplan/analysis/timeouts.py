@@ -129,11 +129,14 @@ def main(argv: list[str] | None = None) -> None:
     if args.humans < 0:
         parser.error(f"--humans must be >= 0, got {args.humans}")
     torch.set_num_threads(1)
+    try:  # every model loads before the first episode runs
+        loaded = [load_model_policy(model) for model in args.models]
+    except (FileNotFoundError, ValueError) as error:
+        parser.error(str(error))
     print(f"{args.scenario}, {args.humans} humans, test cases 0..{args.episodes - 1}\n")
     print("| " + " | ".join(HEADER) + " |")
     print("|" + "---|" * len(HEADER))
-    for model in args.models:
-        policy, world = load_model_policy(model)
+    for model, (policy, world) in zip(args.models, loaded, strict=True):
         config: WorldConfig = dataclasses.replace(world, scenario=args.scenario, humans=args.humans)
         records = run_episodes(policy, config, test_seeds(args.episodes), record_traces=True)
         print("| " + " | ".join(summary_row(model, records)) + " |", flush=True)
