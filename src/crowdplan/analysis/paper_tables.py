@@ -400,26 +400,23 @@ NOTE_GROUPS = (
 def _estimate(group: list[Run], key: str, scenario: str = "circle") -> Estimate:
     """A test metric of a method: one run's value and interval over the test cases, or the mean
     over runs and its interval over runs."""
-    values = [v for v in (r.value(key, scenario) for r in group) if v is not None]
-    if not values:
-        return None, None
-    if len(group) == 1:
+    values = [r.value(key, scenario) for r in group]
+    if len(group) == 1 and values[0] is not None:
         summary = group[0].circle if scenario == "circle" else group[0].square
         ci = ((summary or {}).get(key) or {}).get("ci95")
         return values[0], tuple(ci) if ci and ci[0] is not None else None
-    s = across_seeds(values, (0.0, 1.0) if key.endswith("_rate") else (-math.inf, math.inf))
-    return s.mean, s.ci95
+    return _over_runs(values, rate=key.endswith("_rate"))
 
 
-def _over_runs(values: list[float | None]) -> Estimate:
+def _over_runs(values: list[float | None], rate: bool = False) -> Estimate:
     """A per-run quantity of a method: one run's value, or the mean over runs with the interval
-    the tables print beside it."""
+    the tables print beside it (rates bounded to [0, 1])."""
     known = [v for v in values if v is not None]
     if not known:
         return None, None
     if len(values) == 1:
         return known[0], None
-    s = across_seeds(known, (-math.inf, math.inf))
+    s = across_seeds(known, (0.0, 1.0) if rate else (-math.inf, math.inf))
     return s.mean, s.ci95
 
 
