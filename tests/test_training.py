@@ -171,6 +171,11 @@ def test_malformed_yaml_file(tmp_path):
         load_config(path)
 
 
+def test_every_preset_loads_under_its_file_name():
+    for path in sorted(Path("configs").glob("*.yaml")):
+        assert load_config(path).name == path.stem, path
+
+
 def test_shipped_presets_load():
     for name in ("raw", "rg", "aw", "sa", "lsa"):
         config = load_config(f"configs/{name}_dsac.yaml")
@@ -190,6 +195,11 @@ def test_shipped_presets_load():
     expected = dataclasses.replace(aln.algo_config, average_q=True, updates_per_step=0.5)
     assert avg.algo_config == expected
     assert (avg.policy_average, avg.val_interval, avg.world) == (4, 100, aln.world)
+    for name in ("rg", "aw", "sa"):  # the same recipe, only the encoder differs
+        variant = load_config(f"configs/{name}_dsac_aln_avg.yaml")
+        assert variant.encoder.name == name
+        same = dataclasses.replace(variant, name=avg.name, encoder=avg.encoder)
+        assert same == avg
     # the discount read as 0.95 per second of travel: 0.95 ** (dt * v_pref) per step
     config = load_config("configs/lsa_dsac_ent05_gsec.yaml")
     per_second = 0.95 ** (config.world.dt * config.world.robot_v_pref)
