@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import yaml
 
-from crowdplan.analysis.curves import discover_runs
+from crowdplan.analysis.curves import PANELS, discover_runs, panel_lines
 
 
-def _run(root, folder: str, name: str, seed: int, humans: int = 5) -> None:
+def _run(root, folder: str, name: str, seed: int, humans: int = 5, encoder: str = "lsa") -> None:
     run = root / folder
     run.mkdir()
-    config = {"name": name, "seed": seed, "world": {"humans": humans}}
+    config = {"name": name, "seed": seed, "world": {"humans": humans}, "encoder": {"name": encoder}}
     (run / "config.yaml").write_text(yaml.safe_dump(config))
     (run / "episodes.csv").write_text("episode,discounted_return\n1,0.5\n")
 
@@ -27,3 +27,15 @@ def test_a_sweep_variant_is_its_own_method_though_its_config_keeps_the_preset_na
         "lsa_dsac_ent05-h1-s0": "lsa_dsac_ent05-h1",
         "my_run": "cadrl-h1",
     }
+
+
+def test_combined_recipe_panels_take_its_encoders_and_crowd_sizes(tmp_path):
+    for encoder in ("rg", "aw", "lsa"):
+        _run(tmp_path, f"{encoder}_dsac_aln_avg-s0", f"{encoder}_dsac_aln_avg", 0, encoder=encoder)
+    _run(tmp_path, "lsa_dsac_aln_avg-h2-s0", "lsa_dsac_aln_avg", 0, humans=2)
+    _run(tmp_path, "aw_dsac_ent05-s0", "aw_dsac_ent05", 0, encoder="aw")
+    runs = discover_runs(tmp_path)
+    panels = {panel.key: panel for panel in PANELS}
+    assert list(panel_lines(panels["h"], runs)) == ["AW", "LSA", "RG"]
+    assert list(panel_lines(panels["i"], runs)) == ["2 humans", "5 humans"]
+    assert [r.folder.name for r in panel_lines(panels["a"], runs)["AW"]] == ["aw_dsac_ent05-s0"]

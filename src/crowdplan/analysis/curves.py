@@ -1,4 +1,4 @@
-"""Training curves of many runs (the paper's figure 6 a-i), grouped into panels.
+"""Training curves of many runs (the paper's figure 6, and the same panels for the combined recipe), grouped into panels.
 
 Run folders (``results/train/<run>/`` with config.yaml and episodes.csv) are found by
 ``discover_runs``; a run's *method* is its config name plus the crowd size (``-h<N>``), its seeds
@@ -90,14 +90,23 @@ def _both_kinds(lines: dict[str, list[Run]]) -> dict[str, list[Run]]:
     return {label: runs for label, runs in lines.items() if label.split()[0] in keep}
 
 
-def _ent05_encoder(run: Run) -> bool:
-    return run.algo == "dsac" and re.fullmatch(r"[a-z]+_dsac_ent05", run.name) is not None
+def _encoder_preset(suffix: str) -> Callable[[Run], bool]:
+    """Whether a run is a DSAC run of the per-encoder preset ``<encoder>_dsac_<suffix>``."""
+
+    def select(run: Run) -> bool:
+        return run.algo == "dsac" and re.fullmatch(rf"[a-z]+_dsac_{suffix}", run.name) is not None
+
+    return select
+
+
+_ent05_encoder = _encoder_preset("ent05")
+_combined_encoder = _encoder_preset("aln_avg")  # configs/<encoder>_dsac_aln_avg.yaml
 
 
 PANELS = (
     Panel(
         "a",
-        "encoders, 5 humans",
+        "encoders, 5 humans, 0.5 log 81",
         lambda r: _ent05_encoder(r) and r.humans == 5,
         lambda r: r.encoder.upper(),
     ),
@@ -109,7 +118,7 @@ PANELS = (
     ),
     Panel(
         "c",
-        "LSA-DSAC with 1-5 humans",
+        "LSA-DSAC with 1-5 humans, 0.5 log 81",
         lambda r: r.name == "lsa_dsac_ent05" and 1 <= r.humans <= 5,
         lambda r: f"{r.humans} human{'s' * (r.humans > 1)}",
     ),
@@ -138,6 +147,18 @@ PANELS = (
         "baselines (value-based and actor-critic)",
         lambda r: r.algo != "dsac",
         lambda r: r.method,
+    ),
+    Panel(
+        "h",
+        "encoders, 5 humans, combined recipe",
+        lambda r: _combined_encoder(r) and r.humans == 5,
+        lambda r: r.encoder.upper(),
+    ),
+    Panel(
+        "i",
+        "LSA-DSAC with 1-5 humans, combined recipe",
+        lambda r: r.name == "lsa_dsac_aln_avg" and 1 <= r.humans <= 5,
+        lambda r: f"{r.humans} human{'s' * (r.humans > 1)}",
     ),
 )
 
