@@ -1,4 +1,5 @@
-"""Training curves of many runs (the paper's figure 6, and the same panels for the combined recipe), grouped into panels.
+"""Training curves of many runs, grouped into panels: the paper's figure 6, and the same
+panels for the combined recipe (``configs/*_dsac_aln_avg.yaml``).
 
 Run folders (``results/train/<run>/`` with config.yaml and episodes.csv) are found by
 ``discover_runs``; a run's *method* is its config name plus the crowd size (``-h<N>``), its seeds
