@@ -92,10 +92,11 @@ def _both_kinds(lines: dict[str, list[Run]]) -> dict[str, list[Run]]:
 
 
 def _encoder_preset(suffix: str) -> Callable[[Run], bool]:
-    """Whether a run is a DSAC run of the per-encoder preset ``<encoder>_dsac_<suffix>``."""
+    """Whether a run is a seed of the per-encoder preset ``<encoder>_dsac_<suffix>`` itself, not
+    of a variant of it (``Run.method``)."""
 
     def select(run: Run) -> bool:
-        return run.algo == "dsac" and re.fullmatch(rf"[a-z]+_dsac_{suffix}", run.name) is not None
+        return run.algo == "dsac" and re.fullmatch(rf"[a-z]+_dsac_{suffix}", run.method) is not None
 
     return select
 
@@ -158,7 +159,7 @@ PANELS = (
     Panel(
         "i",
         "LSA-DSAC with 1-5 humans, combined recipe",
-        lambda r: r.name == "lsa_dsac_aln_avg" and 1 <= r.humans <= 5,
+        lambda r: re.fullmatch(r"lsa_dsac_aln_avg(-h[1-4])?", r.method) is not None,
         lambda r: f"{r.humans} human{'s' * (r.humans > 1)}",
     ),
 )
