@@ -101,6 +101,16 @@ def _encoder_preset(suffix: str) -> Callable[[Run], bool]:
     return select
 
 
+def _lsa_crowd_sizes(preset: str) -> Callable[[Run], bool]:
+    """Whether a run is a seed of the LSA-DSAC preset ``preset`` with 5 humans or of its
+    ``-h1`` to ``-h4`` crowd sizes (``Run.method``), not of a variant of it."""
+
+    def select(run: Run) -> bool:
+        return re.fullmatch(rf"{preset}(-h[1-4])?", run.method) is not None
+
+    return select
+
+
 _ent05_encoder = _encoder_preset("ent05")
 _combined_encoder = _encoder_preset("aln_avg")  # configs/<encoder>_dsac_aln_avg.yaml
 
@@ -121,7 +131,7 @@ PANELS = (
     Panel(
         "c",
         "LSA-DSAC with 1-5 humans, 0.5 log 81",
-        lambda r: r.name == "lsa_dsac_ent05" and 1 <= r.humans <= 5,
+        _lsa_crowd_sizes("lsa_dsac_ent05"),
         lambda r: f"{r.humans} human{'s' * (r.humans > 1)}",
     ),
     Panel(
@@ -159,7 +169,7 @@ PANELS = (
     Panel(
         "i",
         "LSA-DSAC with 1-5 humans, combined recipe",
-        lambda r: re.fullmatch(r"lsa_dsac_aln_avg(-h[1-4])?", r.method) is not None,
+        _lsa_crowd_sizes("lsa_dsac_aln_avg"),
         lambda r: f"{r.humans} human{'s' * (r.humans > 1)}",
     ),
 )
