@@ -33,11 +33,20 @@ def test_combined_recipe_panels_take_its_encoders_and_crowd_sizes(tmp_path):
     for encoder in ("rg", "aw", "lsa"):
         _run(tmp_path, f"{encoder}_dsac_aln_avg-s0", f"{encoder}_dsac_aln_avg", 0, encoder=encoder)
     _run(tmp_path, "lsa_dsac_aln_avg-h2-s0", "lsa_dsac_aln_avg", 0, humans=2)
+    _run(tmp_path, "lsa_dsac_aln_avg-h10-s0", "lsa_dsac_aln_avg", 0, humans=10)
+    _run(tmp_path, "rg_dsac_aln_avg-h10-s0", "rg_dsac_aln_avg", 0, humans=10, encoder="rg")
+    _run(tmp_path, "rg_dsac_ent05-h10-s0", "rg_dsac_ent05", 0, humans=10, encoder="rg")
     _run(tmp_path, "aw_dsac_ent05-s0", "aw_dsac_ent05", 0, encoder="aw")
     _run(tmp_path, "lsa_dsac_aln_avg_utd1-s0", "lsa_dsac_aln_avg", 0)  # a variant, not the preset
     runs = discover_runs(tmp_path)
     panels = {panel.key: panel for panel in PANELS}
     assert list(panel_lines(panels["h"], runs)) == ["AW", "LSA", "RG"]
     lines = panel_lines(panels["i"], runs)
-    assert list(lines) == ["2 humans", "5 humans"] and len(lines["5 humans"]) == 1
+    assert list(lines) == ["10 humans", "2 humans", "5 humans"] and len(lines["5 humans"]) == 1
     assert [r.folder.name for r in panel_lines(panels["a"], runs)["AW"]] == ["aw_dsac_ent05-s0"]
+    # 10 humans: one panel per recipe, so the two RG runs are never drawn as seeds of one line
+    assert [r.folder.name for r in panel_lines(panels["b"], runs)["RG"]] == ["rg_dsac_ent05-h10-s0"]
+    assert list(panel_lines(panels["j"], runs)) == ["LSA", "RG"]
+    assert [r.folder.name for r in panel_lines(panels["j"], runs)["RG"]] == [
+        "rg_dsac_aln_avg-h10-s0"
+    ]

@@ -91,46 +91,44 @@ def _both_kinds(lines: dict[str, list[Run]]) -> dict[str, list[Run]]:
     return {label: runs for label, runs in lines.items() if label.split()[0] in keep}
 
 
-def _encoder_preset(suffix: str) -> Callable[[Run], bool]:
-    """Whether a run is a seed of the per-encoder preset ``<encoder>_dsac_<suffix>`` itself, not
-    of a variant of it (``Run.method``)."""
+def _encoder_preset(suffix: str, humans: int) -> Callable[[Run], bool]:
+    """Whether a run is a seed of the per-encoder preset ``<encoder>_dsac_<suffix>`` with
+    ``humans`` humans, not of a variant of it (``Run.method``)."""
+    crowd = "" if humans == 5 else f"-h{humans}"
 
     def select(run: Run) -> bool:
-        return run.algo == "dsac" and re.fullmatch(rf"[a-z]+_dsac_{suffix}", run.method) is not None
+        method = rf"[a-z]+_dsac_{suffix}{crowd}"
+        return run.algo == "dsac" and re.fullmatch(method, run.method) is not None
 
     return select
 
 
 def _lsa_crowd_sizes(preset: str) -> Callable[[Run], bool]:
     """Whether a run is a seed of the LSA-DSAC preset ``preset`` with 5 humans or of its
-    ``-h1`` to ``-h4`` crowd sizes (``Run.method``), not of a variant of it."""
+    ``-h1`` to ``-h4`` and ``-h10`` crowd sizes (``Run.method``), not of a variant of it."""
 
     def select(run: Run) -> bool:
-        return re.fullmatch(rf"{preset}(-h[1-4])?", run.method) is not None
+        return re.fullmatch(rf"{preset}(-h([1-4]|10))?", run.method) is not None
 
     return select
-
-
-_ent05_encoder = _encoder_preset("ent05")
-_combined_encoder = _encoder_preset("aln_avg")  # configs/<encoder>_dsac_aln_avg.yaml
 
 
 PANELS = (
     Panel(
         "a",
         "encoders, 5 humans, 0.5 log 81",
-        lambda r: _ent05_encoder(r) and r.humans == 5,
+        _encoder_preset("ent05", humans=5),
         lambda r: r.encoder.upper(),
     ),
     Panel(
         "b",
-        "encoders, 10 humans",
-        lambda r: r.algo == "dsac" and r.humans == 10,
+        "encoders, 10 humans, 0.5 log 81",
+        _encoder_preset("ent05", humans=10),
         lambda r: r.encoder.upper(),
     ),
     Panel(
         "c",
-        "LSA-DSAC with 1-5 humans, 0.5 log 81",
+        "LSA-DSAC with 1-5 and 10 humans, 0.5 log 81",
         _lsa_crowd_sizes("lsa_dsac_ent05"),
         lambda r: f"{r.humans} human{'s' * (r.humans > 1)}",
     ),
@@ -163,14 +161,20 @@ PANELS = (
     Panel(
         "h",
         "encoders, 5 humans, combined recipe",
-        lambda r: _combined_encoder(r) and r.humans == 5,
+        _encoder_preset("aln_avg", humans=5),
         lambda r: r.encoder.upper(),
     ),
     Panel(
         "i",
-        "LSA-DSAC with 1-5 humans, combined recipe",
+        "LSA-DSAC with 1-5 and 10 humans, combined recipe",
         _lsa_crowd_sizes("lsa_dsac_aln_avg"),
         lambda r: f"{r.humans} human{'s' * (r.humans > 1)}",
+    ),
+    Panel(
+        "j",
+        "encoders, 10 humans, combined recipe",
+        _encoder_preset("aln_avg", humans=10),
+        lambda r: r.encoder.upper(),
     ),
 )
 
