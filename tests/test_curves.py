@@ -42,7 +42,7 @@ def test_combined_recipe_panels_take_its_encoders_and_crowd_sizes(tmp_path):
     panels = {panel.key: panel for panel in PANELS}
     assert list(panel_lines(panels["h"], runs)) == ["AW", "LSA", "RG"]
     lines = panel_lines(panels["i"], runs)
-    assert list(lines) == ["10 humans", "2 humans", "5 humans"] and len(lines["5 humans"]) == 1
+    assert list(lines) == ["2 humans", "5 humans", "10 humans"] and len(lines["5 humans"]) == 1
     assert [r.folder.name for r in panel_lines(panels["a"], runs)["AW"]] == ["aw_dsac_ent05-s0"]
     # 10 humans: one panel per recipe, so the two RG runs are never drawn as seeds of one line
     assert [r.folder.name for r in panel_lines(panels["b"], runs)["RG"]] == ["rg_dsac_ent05-h10-s0"]

@@ -193,7 +193,14 @@ def panel_lines(panel: Panel, runs: list[Run]) -> dict[str, list[Run]]:
             lines.setdefault(panel.label(run), []).append(run)
     if panel.key == "e":
         lines = _both_kinds(lines)
-    return dict(sorted(lines.items())) if len(lines) >= panel.min_lines else {}
+    if len(lines) < panel.min_lines:
+        return {}
+    return {label: lines[label] for label in sorted(lines, key=_natural_order)}
+
+
+def _natural_order(label: str) -> list[str | int]:
+    """Sort key that puts "2 humans" before "10 humans"."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", label)]
 
 
 def seed_band(runs: list[Run]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
