@@ -91,26 +91,24 @@ def _both_kinds(lines: dict[str, list[Run]]) -> dict[str, list[Run]]:
     return {label: runs for label, runs in lines.items() if label.split()[0] in keep}
 
 
-def _encoder_preset(suffix: str, humans: int) -> Callable[[Run], bool]:
-    """Whether a run is a seed of the per-encoder preset ``<encoder>_dsac_<suffix>`` with
-    ``humans`` humans, not of a variant of it (``Run.method``)."""
-    crowd = "" if humans == 5 else f"-h{humans}"
+def _seeds_of(method: str) -> Callable[[Run], bool]:
+    """Whether a DSAC run is a seed of a variant whose name (``Run.method``) fully matches the
+    regular expression ``method``."""
 
     def select(run: Run) -> bool:
-        method = rf"[a-z]+_dsac_{suffix}{crowd}"
         return run.algo == "dsac" and re.fullmatch(method, run.method) is not None
 
     return select
 
 
+def _encoder_preset(suffix: str, humans: int) -> Callable[[Run], bool]:
+    """Seeds of the per-encoder preset ``<encoder>_dsac_<suffix>`` with ``humans`` humans."""
+    return _seeds_of(rf"[a-z]+_dsac_{suffix}" + ("" if humans == 5 else f"-h{humans}"))
+
+
 def _lsa_crowd_sizes(preset: str) -> Callable[[Run], bool]:
-    """Whether a run is a seed of the LSA-DSAC preset ``preset`` with 5 humans or of its
-    ``-h1`` to ``-h4`` and ``-h10`` crowd sizes (``Run.method``), not of a variant of it."""
-
-    def select(run: Run) -> bool:
-        return re.fullmatch(rf"{preset}(-h([1-4]|10))?", run.method) is not None
-
-    return select
+    """Seeds of the LSA-DSAC preset ``preset`` with 5 humans or its -h1 to -h4 and -h10 sizes."""
+    return _seeds_of(rf"{preset}(-h([1-4]|10))?")
 
 
 PANELS = (
