@@ -82,6 +82,7 @@ class Panel:
     select: Callable[[Run], bool]
     label: Callable[[Run], str]
     min_lines: int = 1  # an ablation panel needs something to contrast
+    keep_lines: Callable[[dict[str, list[Run]]], dict[str, list[Run]]] | None = None
 
 
 def _both_kinds(lines: dict[str, list[Run]]) -> dict[str, list[Run]]:
@@ -143,6 +144,7 @@ PANELS = (
         lambda r: r.algo == "dsac" and r.humans == 5 and r.encoder in PAPER_ENCODERS,
         lambda r: f"{r.encoder.upper()} {'shared' if r.share_encoder else 'separate'}",
         min_lines=2,
+        keep_lines=_both_kinds,
     ),
     Panel(
         "f",
@@ -183,14 +185,14 @@ def _smoothed(run: Run) -> tuple[np.ndarray, np.ndarray]:
 
 
 def panel_lines(panel: Panel, runs: list[Run]) -> dict[str, list[Run]]:
-    """The runs of a panel by line label; empty when the panel has fewer than its
-    ``min_lines`` (shared-vs-separate: only encoders trained both ways)."""
+    """The runs of a panel by line label, filtered by its ``keep_lines`` (shared-vs-separate:
+    only encoders trained both ways); empty when fewer than its ``min_lines`` are left."""
     lines: dict[str, list[Run]] = {}
     for run in runs:
         if panel.select(run):
             lines.setdefault(panel.label(run), []).append(run)
-    if panel.key == "e":
-        lines = _both_kinds(lines)
+    if panel.keep_lines is not None:
+        lines = panel.keep_lines(lines)
     if len(lines) < panel.min_lines:
         return {}
     return {label: lines[label] for label in sorted(lines, key=_natural_order)}
