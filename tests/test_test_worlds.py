@@ -28,6 +28,11 @@ def test_transfer_block_of_a_markdown_page(tmp_path):
     assert "old" not in text
     assert "| planner | circle | circle-10 | circle-20 | circle-rotated | empty |" in text
     assert "| straight |" in text and "| orca |" in text
+    # the time-to-goal table has the summary's mean of each planner in each world
+    times = text.split("### Time to goal (s)")[1].split("###")[0]
+    empty = json.loads((out / "empty" / "orca" / "summary.json").read_text())
+    orca_row = next(line for line in times.splitlines() if line.startswith("| orca |"))
+    assert f"{empty['time_to_goal']['value']:.2f}" in orca_row.split("|")[6]
 
 
 def test_default_world_drops_the_training_mixture_but_keeps_the_action_interface():

@@ -446,8 +446,8 @@ def curves_section(train: Path) -> Section:
 
 
 def transfer_tables(generalization: Path) -> list[Table]:
-    """Success (collision) of every planner in every test world, then per world the paired
-    comparisons with the reference planner."""
+    """Success (collision) and time to goal of every planner in every test world, then per world
+    the paired comparisons with the reference planner."""
     worlds = (
         sorted(p.name for p in generalization.iterdir() if p.is_dir())
         if generalization.is_dir()
@@ -460,17 +460,25 @@ def transfer_tables(generalization: Path) -> list[Table]:
         [],
         note="Worlds: crowdplan.analysis.test_worlds (docs/scenarios.md).",
     )
+    times = Table(
+        "Time to goal (s) of every planner in every test world, mean over the cases it reached",
+        ["planner", *worlds],
+        [],
+    )
     tests: list[Table] = []
     for planner in planners:
-        row = [planner]
+        row, time_row = [planner], [planner]
         for world in worlds:
             path = generalization / world / planner / "summary.json"
             if path.is_file():
                 s = json.loads(path.read_text())
                 row.append(f"{_value(s, 'success_rate')} ({_value(s, 'collision_rate')})")
+                time_row.append(_value(s, "time_to_goal", 2))
             else:
                 row.append("-")
+                time_row.append("-")
         table.rows.append(row)
+        times.rows.append(time_row)
     for world in worlds:
         folder = generalization / world
         if not (folder / REFERENCE / "episodes.jsonl").is_file():
@@ -485,7 +493,7 @@ def transfer_tables(generalization: Path) -> list[Table]:
             if same_cases(ref_summary, _summary(folder / planner)):
                 t.rows.append(stats.compare(ref, read_episodes(path), REFERENCE, planner).row())
         tests.append(t)
-    return [table, *tests]
+    return [table, times, *tests]
 
 
 def robustness_table(train: Path) -> Table:
@@ -533,8 +541,8 @@ def transfer_section(generalization: Path, train: Path) -> Section:
         "python -m crowdplan.analysis.test_worlds --out results/generalization lsa-dsac "
         "lsa-dsac-paper lsa-dsac-paper-goal orca straight  # make generalization",
     ]
-    table, *tests = transfer_tables(generalization)
-    tables = [table, robustness_table(train), *tests]
+    table, times, *tests = transfer_tables(generalization)
+    tables = [table, times, robustness_table(train), *tests]
     return Section("Transfer and robustness", commands, tables=tables)
 
 
