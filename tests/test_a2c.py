@@ -197,9 +197,13 @@ def test_same_seed_twice_is_identical_and_another_seed_differs(tmp_path):
     assert not torch.equal(_weights(a), _weights(train_tiny(TINY, tmp_path, "c", seed=1)))
 
 
-def test_sigterm_mid_rollout_and_resume_is_exact(tmp_path, monkeypatch):
-    straight = train_tiny(TINY, tmp_path, "straight", episodes=6)
-    config = config_from_dict(TINY)
+LINEAR = {**TINY, "a2c": {**TINY["a2c"], "lr_schedule": "linear"}}
+
+
+@pytest.mark.parametrize("data", [TINY, LINEAR], ids=["constant", "linear"])
+def test_sigterm_mid_rollout_and_resume_is_exact(tmp_path, monkeypatch, data):
+    straight = train_tiny(data, tmp_path, "straight", episodes=6)
+    config = config_from_dict(data)
     killed = Trainer(config, tmp_path / "killed", progress=False)
     step, calls = killed._train_step, []
 
@@ -218,6 +222,21 @@ def test_sigterm_mid_rollout_and_resume_is_exact(tmp_path, monkeypatch):
     assert torch.equal(_weights(straight), _weights(resumed))
     assert resumed.agent.n_updates == straight.agent.n_updates
     assert [e["seed"] for e in straight.episodes] == [e["seed"] for e in resumed.episodes]
+
+
+def test_linear_schedule_falls_to_zero_at_the_budget_and_changes_the_run(tmp_path):
+    agent, config = _agent(lr_schedule="linear", lr=0.002)
+    assert agent.learning_rate() == 0.002
+    agent.episodes_done(config.episodes // 2)
+    assert agent.learning_rate() == pytest.approx(0.001)
+    agent.episodes_done(config.episodes)
+    assert agent.learning_rate() == 0.0
+    constant, _ = _agent(lr=0.002)
+    constant.episodes_done(config.episodes)
+    assert constant.learning_rate() == 0.002
+    linear = train_tiny(LINEAR, tmp_path, "linear")
+    assert linear.agent.optimizer.param_groups[0]["lr"] < config.algo_config.lr
+    assert not torch.equal(_weights(linear), _weights(train_tiny(TINY, tmp_path, "constant")))
 
 
 # ------------------------------------------------------------------ CLI and model files
@@ -258,6 +277,7 @@ def test_shipped_presets_load():
         ({**TINY, "a2c": {"n_steps": 0}}, "a2c.n_steps must be >= 1, got 0"),
         ({**TINY, "a2c": {"lr": "fast"}}, "a2c.lr must be a number, got 'fast'"),
         ({**TINY, "a2c": {"batch_size": 16}}, "unknown key(s) ['batch_size'] in a2c"),
+        ({**TINY, "a2c": {"lr_schedule": "cosine"}}, "a2c.lr_schedule must be one of"),
         ({**TINY, "random_steps": 16}, "unknown key(s) ['random_steps'] in top level"),
         ({**TINY, "algo": "dsac"}, "section(s) ['a2c'] belong to another algorithm"),
     ],

@@ -18,6 +18,8 @@ from the true last observation where step t is the rollout's last or was truncat
 limit (the state did not end: bootstrap). ``lambda = 1`` gives the plain n-step returns
 ``G_t = r_t + gamma (1 - terminated_t) G_{t+1}``. V is detached in the advantages, which may be
 standardised per rollout (``normalize_advantages``). Gradients are clipped to ``max_grad_norm``.
+With ``lr_schedule: linear`` the learning rate falls linearly from ``lr`` at the first episode
+to 0 at the run's episode budget (OpenAI baselines' A2C default), which calms the late updates.
 The greedy policy is the actor's argmax.
 """
 
@@ -74,6 +76,8 @@ class A2CConfig:
         max_grad_norm: gradients are clipped to this global norm.
         gae_lambda: lambda of the GAE advantages (1: the plain n-step returns).
         normalize_advantages: standardise the advantages over each rollout (policy loss only).
+        lr_schedule: ``constant``, or ``linear``: ``lr * (1 - episodes / budget)``, the budget
+            being the run's ``episodes`` (a resume with a larger budget stretches the schedule).
         lstm_hidden: hidden size of the encoder's LSTM (SPEC: 50).
         actor_hidden: hidden sizes of the actor MLP.
         critic_hidden: hidden sizes of the critic MLP.
@@ -87,6 +91,7 @@ class A2CConfig:
     max_grad_norm: float = spec(0.5, low=0.0, low_open=True)
     gae_lambda: float = spec(1.0, low=0.0, high=1.0)
     normalize_advantages: bool = False
+    lr_schedule: str = spec("constant", choices=("constant", "linear"))
     lstm_hidden: int = spec(50, low=1)
     actor_hidden: tuple[int, ...] = (150, 100)
     critic_hidden: tuple[int, ...] = (150, 100, 100)
@@ -181,6 +186,7 @@ class A2CAgent:
         self.features = StepFeatures(self.unicycle)
         self.rollout: list[dict[str, np.ndarray]] = []
         self.n_updates = 0
+        self.episodes = 0
 
     def pretrain(self, log: Any) -> None:
         """A2C learns from its own experience only."""
@@ -239,6 +245,8 @@ class A2CAgent:
         self.optimizer.zero_grad()
         loss.backward()
         grad_norm = nn.utils.clip_grad_norm_(self.net.parameters(), p.max_grad_norm)
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.learning_rate()
         self.optimizer.step()
         self.n_updates += 1
         stats = {
@@ -263,8 +271,16 @@ class A2CAgent:
             bootstrap[needed] = self.net.value(*rows)
         return bootstrap
 
+    def learning_rate(self) -> float:
+        """The learning rate of the next gradient step (``lr_schedule``)."""
+        p = self.params
+        if p.lr_schedule == "constant":
+            return p.lr
+        return p.lr * max(0.0, 1.0 - self.episodes / self.config.episodes)
+
     def episodes_done(self, episodes: int) -> None:
-        """A2C has no per-episode schedule."""
+        """Advance the learning-rate schedule."""
+        self.episodes = episodes
 
     def policy(self, name: str) -> A2CPolicy:
         return A2CPolicy(self.net, self.config.world, name)
@@ -287,6 +303,7 @@ class A2CAgent:
             "generator": self.generator.get_state(),
             "rollout": self.rollout,
             "n_updates": self.n_updates,
+            "episodes": self.episodes,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -295,6 +312,7 @@ class A2CAgent:
         self.generator.set_state(state["generator"])
         self.rollout = list(state["rollout"])
         self.n_updates = int(state["n_updates"])
+        self.episodes = int(state.get("episodes", 0))  # older checkpoints: constant rate only
 
 
 def load_a2c_payload(payload: dict[str, Any], path: Path) -> tuple[A2CPolicy, WorldConfig]:
