@@ -130,64 +130,24 @@ def _draw_static(ax, trace: Trace, style: _Style) -> None:
     ax.grid(True, linewidth=0.3, alpha=0.5)
 
 
+def _marker(label: str, marker: str, size: float, **style) -> Line2D:
+    """A legend entry drawn as one marker (no line unless ``style`` asks for a colour)."""
+    return Line2D([], [], marker=marker, markersize=size, label=label, **{"color": "none", **style})
+
+
 def _legend(target, style: _Style) -> None:
     """The legend: below the axes on a constrained-layout figure (so that it never hides a
     trajectory), else in the upper right corner of the axes ``target``."""
     handles = [
-        Line2D(
-            [],
-            [],
-            marker="o",
-            markersize=8,
-            color="none",
-            markerfacecolor=ROBOT_COLOR,
-            markeredgecolor=ROBOT_EDGE,
-            label="robot",
-        ),
-        Line2D(
-            [],
-            [],
-            marker="*",
-            markersize=10,
-            color="none",
-            markerfacecolor=ROBOT_GOAL_COLOR,
-            markeredgecolor="black",
-            label="robot goal",
-        ),
+        _marker("robot", "o", 8, markerfacecolor=ROBOT_COLOR, markeredgecolor=ROBOT_EDGE),
+        _marker("robot goal", "*", 10, markerfacecolor=ROBOT_GOAL_COLOR, markeredgecolor="black"),
     ]
     if style.n:
+        human = {"markerfacecolor": "white", "markeredgecolor": "0.35"}
         handles += [
-            Line2D(
-                [],
-                [],
-                marker="o",
-                markersize=8,
-                color="none",
-                markerfacecolor="white",
-                markeredgecolor="0.35",
-                markeredgewidth=1.5,
-                label="humans",
-            ),
-            Line2D(
-                [],
-                [],
-                marker="x",
-                markersize=6,
-                color="0.35",
-                linestyle="none",
-                label="human goals",
-            ),
-            Line2D(
-                [],
-                [],
-                marker="o",
-                markersize=8,
-                color="none",
-                markerfacecolor="white",
-                markeredgecolor="0.35",
-                alpha=0.55,
-                label="time stamps (s)",
-            ),
+            _marker("humans", "o", 8, markeredgewidth=1.5, **human),
+            _marker("human goals", "x", 6, color="0.35", linestyle="none"),
+            _marker("time stamps (s)", "o", 8, alpha=0.55, **human),
         ]
     if isinstance(target, Figure):
         target.legend(
