@@ -58,3 +58,19 @@ def test_default_world_warns_in_one_line(capsys):
     )
     warnings = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
     assert len(warnings) == 1 and "--default-world evaluates it in the paper's world" in warnings[0]
+
+
+def test_model_files_are_named_after_their_folder_and_clashes_are_refused(tmp_path, capsys):
+    import pytest
+
+    from crowdplan.analysis.test_worlds import planner_label
+
+    assert planner_label("results/train/run-s1/best_model.pt@shield=2.5") == "run-s1@shield=2.5"
+    assert planner_label("models/sarl/model.pt") == "sarl"
+    assert planner_label("results/train/run-s1") == "run-s1"
+    assert planner_label("exported/other.pt") == "other.pt"
+    assert planner_label("orca") == "orca"
+    with pytest.raises(SystemExit):
+        main(["a/best_model.pt", "a/final_model.pt", "--out", str(tmp_path), "--episodes", "1"])
+    assert "would all write to <world>/a" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())

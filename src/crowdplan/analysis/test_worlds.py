@@ -7,7 +7,8 @@ in every world writes one result folder per world:
 
 Names are shipped models, run folders or model files; ``orca`` and ``straight`` are the built-in
 planners. ``NAME@shield=S`` runs a model with the safety shield's horizon set to S seconds (0:
-off) instead of the model's own (``crowdplan eval --shield``); its folder keeps that name. Every
+off) instead of the model's own (``crowdplan eval --shield``); its folder keeps that name. A model
+file named ``best_model.pt``, ``final_model.pt`` or ``model.pt`` writes to its folder's name. Every
 world starts from the default (the paper's) world, whatever world a model was trained in
 (``crowdplan eval --default-world``). Replayed pedestrians come from the held-out ETH/UCY scenes
 only (zara1, zara2, univ).
@@ -69,6 +70,19 @@ def eval_arguments(planner: str, world: str, out: Path, episodes: int) -> list[s
     ]
 
 
+MODEL_FILE_STEMS = ("best_model", "final_model", "model")  # named after their folder instead
+
+
+def planner_label(planner: str) -> str:
+    """The result folder name of a planner: its name, the run (or model) folder of a model file
+    such as ``results/train/RUN/best_model.pt``, with its ``@shield=S`` option kept."""
+    name, at, option = planner.partition("@")
+    path = Path(name)
+    if path.suffix == ".pt" and path.stem in MODEL_FILE_STEMS and path.parent.name:
+        return path.parent.name + at + option
+    return path.name + at + option
+
+
 def main(argv: list[str] | None = None) -> int:
     from crowdplan.cli import main as crowdplan
 
@@ -78,9 +92,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=500, help="test cases per world (500)")
     parser.add_argument("--worlds", nargs="*", default=list(TEST_WORLDS), choices=list(TEST_WORLDS))
     args = parser.parse_args(argv)
+    labels = [planner_label(planner) for planner in args.planners]
+    for label in sorted(set(labels)):
+        same = [p for p, other in zip(args.planners, labels, strict=True) if other == label]
+        if len(same) > 1:
+            parser.error(f"planners {same} would all write to <world>/{label}: name each once")
     for world in args.worlds:
-        for planner in args.planners:
-            out = Path(args.out) / world / Path(planner).name
+        for planner, label in zip(args.planners, labels, strict=True):
+            out = Path(args.out) / world / label
             status = crowdplan(eval_arguments(planner, world, out, args.episodes))
             if status != 0:
                 return status
