@@ -19,7 +19,8 @@ limit (the state did not end: bootstrap). ``lambda = 1`` gives the plain n-step 
 ``G_t = r_t + gamma (1 - terminated_t) G_{t+1}``. V is detached in the advantages, which may be
 standardised per rollout (``normalize_advantages``). Gradients are clipped to ``max_grad_norm``.
 With ``lr_schedule: linear`` the learning rate falls linearly from ``lr`` at the first episode
-to 0 at the run's episode budget (OpenAI baselines' A2C default), which calms the late updates.
+to 0 at the run's episode budget (OpenAI baselines' A2C default; off in the presets: tried and
+not adopted, docs/baselines.md).
 The greedy policy is the actor's argmax.
 """
 
