@@ -45,16 +45,21 @@ TEST_WORLDS: dict[str, tuple[str, list[str]]] = {
 }
 
 
+def split_planner(planner: str) -> tuple[str, str | None]:
+    """``NAME[@shield=SECONDS]`` as ``(NAME, SECONDS or None)``; any other option is refused."""
+    name, at, option = planner.partition("@")
+    key, _, value = option.partition("=")
+    if at and (key != "shield" or not value):
+        raise ValueError(f"planner {planner!r}: the only option is NAME@shield=SECONDS")
+    return name, value if at else None
+
+
 def eval_arguments(planner: str, world: str, out: Path, episodes: int) -> list[str]:
     """``crowdplan eval`` arguments of one planner in one test world."""
-    name, _, option = planner.partition("@")
-    if option:
-        key, _, value = option.partition("=")
-        if key != "shield" or not value:
-            raise ValueError(f"planner {planner!r}: the only option is NAME@shield=SECONDS")
+    name, shield = split_planner(planner)
     source = ["--policy", name] if name in BUILTIN_POLICIES else ["--model", name]
-    if option:
-        source += ["--shield", value]
+    if shield is not None:
+        source += ["--shield", shield]
     _, options = TEST_WORLDS[world]
     return [
         "eval",
@@ -76,11 +81,11 @@ MODEL_FILE_STEMS = ("best_model", "final_model", "model")  # named after their f
 def planner_label(planner: str) -> str:
     """The result folder name of a planner: its name, the run (or model) folder of a model file
     such as ``results/train/RUN/best_model.pt``, with its ``@shield=S`` option kept."""
-    name, at, option = planner.partition("@")
+    name, shield = split_planner(planner)
     path = Path(name)
     if path.suffix == ".pt" and path.stem in MODEL_FILE_STEMS and path.parent.name:
-        return path.parent.name + at + option
-    return path.name + at + option
+        path = path.parent
+    return path.name + ("" if shield is None else f"@shield={shield}")
 
 
 def main(argv: list[str] | None = None) -> int:
