@@ -9,6 +9,13 @@ seconds, hours per 10k episodes at this stage of training, and the speed-up. Ear
 long (random actions, time-outs), so hours per 10k episodes here are an upper bound for a whole
 run; the speed-up is what this measures.
 
+    python benchmarks/bench_train.py --device cuda --cuda-graph [--config ...] [--episodes 40]
+
+instead trains twice on the GPU, with the eager update and with the update captured in one CUDA
+graph (``dsac.cuda_graph``), and prints the same table. The two runs are not bitwise equal (the
+captured LSTM runs over padded sequences instead of packed ones), so their episodes may part
+ways; the table then also gives milliseconds per environment step, which compare either way.
+
     python benchmarks/bench_train.py --resume-from runs/lsa_dsac_ent05-s0 [RUN ...] [--episodes 100]
 
 instead continues each trained run from its checkpoint (in a temporary copy) for ``--episodes``
@@ -46,6 +53,13 @@ def main() -> None:
     parser.add_argument("--config", default="configs/lsa_dsac_ent05.yaml")
     parser.add_argument("--episodes", type=int, default=40)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--device", default="cpu", help="cpu or a CUDA device")
+    parser.add_argument(
+        "--cuda-graph",
+        action="store_true",
+        help="compare the eager and the CUDA-graph update on --device (instead of the serial and "
+        "the two-thread update)",
+    )
     parser.add_argument(
         "--resume-from",
         type=Path,
@@ -59,6 +73,10 @@ def main() -> None:
         help="with --resume-from: torch threads of every continued run (default: each run's own)",
     )
     args = parser.parse_args()
+    if args.cuda_graph and not args.device.startswith("cuda"):
+        parser.error("--cuda-graph needs --device cuda")
+    if args.resume_from is not None and args.device != "cpu":
+        parser.error("--resume-from continues runs on the CPU they were trained on")
     if args.resume_from is not None:
         time_trained_runs(args.resume_from, args.episodes, args.torch_threads)
         return
@@ -72,41 +90,54 @@ def main() -> None:
         checkpoint_interval=10**9,
         log_interval=10**9,
         test_episodes=0,
+        device=args.device,
     )
+    if args.cuda_graph:
+        variants = [("eager", {"cuda_graph": False}), ("CUDA graph", {"cuda_graph": True})]
+    else:
+        variants = [
+            ("serial", {"parallel_update": False}),
+            ("two threads", {"parallel_update": True}),
+        ]
     torch.set_num_threads(base.torch_threads)
     rows, episodes = [], []
     with tempfile.TemporaryDirectory() as tmp:
         # one-off Numba compilation of the world kernels, outside the timed runs
         warm = Trainer(base, Path(tmp) / "warm", progress=False)
         warm.env.step(np.zeros(base.num_envs, dtype=np.int64))
-        for parallel in (False, True):
+        for label, options in variants:
             config = dataclasses.replace(
-                base,
-                algo_config=dataclasses.replace(base.algo_config, parallel_update=parallel),
+                base, algo_config=dataclasses.replace(base.algo_config, **options)
             )
-            trainer = train(config, Path(tmp) / f"parallel-{parallel}")
+            trainer = train(config, Path(tmp) / label.replace(" ", "-"))
             episodes.append(
                 [{k: v for k, v in e.items() if k != "train_seconds"} for e in trainer.episodes]
             )
-            rows.append((parallel, trainer))
-    if episodes[0] != episodes[1]:
+            rows.append((label, trainer))
+    identical = episodes[0] == episodes[1]
+    if not identical and not args.cuda_graph:
         raise SystemExit("serial and parallel runs differ: the two-thread update is not exact")
 
-    serial_seconds = rows[0][1].train_seconds
+    first_seconds = rows[0][1].train_seconds
     print(
-        f"torch {torch.__version__}, threads={base.torch_threads}, config={args.config}, "
-        f"seed={args.seed}, {args.episodes} episodes from scratch (random actions for the first "
-        f"{base.algo_config.random_steps} transitions); identical episodes in both runs: yes\n"
+        f"torch {torch.__version__}, device={args.device}, threads={base.torch_threads}, "
+        f"config={args.config}, seed={args.seed}, {args.episodes} episodes from scratch (random "
+        f"actions for the first {base.algo_config.random_steps} transitions); identical "
+        f"episodes in both runs: {'yes' if identical else 'no'}\n"
     )
-    print("| update | episodes | env steps | updates | train s | h / 10k episodes | speed-up |")
-    print("|---|---:|---:|---:|---:|---:|---:|")
-    for parallel, trainer in rows:
+    print(
+        "| update | episodes | env steps | updates | train s | ms per env step | "
+        "h / 10k episodes | speed-up |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
+    for label, trainer in rows:
         done = len(trainer.episodes)
         hours = trainer.train_seconds / done * 10000 / 3600
+        per_step = trainer.train_seconds / trainer.env_steps * 1e3
         print(
-            f"| {'two threads' if parallel else 'serial'} | {done} | {trainer.env_steps} | "
-            f"{trainer.agent.n_updates} | {trainer.train_seconds:.1f} | {hours:.2f} | "
-            f"{serial_seconds / trainer.train_seconds:.2f}x |"
+            f"| {label} | {done} | {trainer.env_steps} | {trainer.agent.n_updates} | "
+            f"{trainer.train_seconds:.1f} | {per_step:.2f} | {hours:.2f} | "
+            f"{first_seconds / trainer.train_seconds:.2f}x |"
         )
 
 

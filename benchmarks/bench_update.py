@@ -1,7 +1,7 @@
 """Time one DSAC update and compare its FLOP rate with a large matmul measured in the same run.
 
     python benchmarks/bench_update.py [--encoder lsa] [--threads 1] [--humans 5] [--batch 128]
-        [--cpu-clock] [--parallel-update] [--bf16] [--profile]
+        [--cpu-clock] [--parallel-update] [--bf16] [--profile] [--device cuda [--cuda-graph]]
 
 Prints a markdown table: ms per update (best of ``--rounds`` rounds of ``--iters`` updates after
 ``--warmup``; the best round is the least disturbed by other processes), GFLOP per update counted
@@ -174,6 +174,12 @@ def main() -> None:
         "speed-up over float32, timed back to back (CPU only)",
     )
     parser.add_argument(
+        "--cuda-graph",
+        action="store_true",
+        help="also time the update captured in one CUDA graph (DSACConfig(cuda_graph=True)) and "
+        "print its speed-up over the eager update on the same device, timed back to back",
+    )
+    parser.add_argument(
         "--profile",
         action="store_true",
         help="also print where the serial update's CPU time goes, by op category "
@@ -184,6 +190,8 @@ def main() -> None:
         parser.error("--cpu-clock times one host thread: not with CUDA or --parallel-update")
     if args.bf16 and args.device != "cpu":
         parser.error("--bf16 times CPU autocast; on CUDA use the device's own precision options")
+    if args.cuda_graph and not args.device.startswith("cuda"):
+        parser.error("--cuda-graph needs --device cuda")
 
     torch.set_num_threads(args.threads)
     encoder = EncoderConfig(name=args.encoder, max_humans=args.humans)
@@ -234,6 +242,20 @@ def main() -> None:
         print("\n| float32 update ms | bfloat16 autocast update ms | speed-up |")
         print("|---:|---:|---:|")
         print(f"| {serial * 1e3:.2f} | {bf16 * 1e3:.2f} | {serial / bf16:.2f}x |")
+    if args.cuda_graph:
+        config = DSACConfig(batch_size=args.batch, cuda_graph=True)
+        graphed = time_update(
+            DSAC(config, encoder, device=args.device),
+            batch,
+            args.warmup,
+            args.iters,
+            args.rounds,
+            clock,
+        )
+        eager = time_update(agent, batch, 0, args.iters, args.rounds, clock)
+        print("\n| eager update ms | CUDA-graph update ms | speed-up |")
+        print("|---:|---:|---:|")
+        print(f"| {eager * 1e3:.2f} | {graphed * 1e3:.2f} | {eager / graphed:.2f}x |")
     if args.profile:
         print("\n| op category (serial update, profiled) | ms per update | share |")
         print("|---|---:|---:|")

@@ -11,6 +11,7 @@ from crowdplan.nets.encoders import (
     RG_POOLINGS,
     EncoderConfig,
     make_encoder,
+    unpacked_lstm,
 )
 
 
@@ -149,6 +150,29 @@ def test_index_order_follows_the_input_order():
     torch.testing.assert_close(
         enc(robot, humans[:, perm], mask[:, perm])[0], enc(robot, humans, mask)[0]
     )
+
+
+@pytest.mark.parametrize(("name", "pooling"), VARIANTS, ids=IDS)
+def test_the_unpacked_lstm_gives_the_packed_features_and_gradients(name, pooling):
+    """What a CUDA graph captures: the LSTM over the padded crowd, read at each row's last real
+    human, instead of packed by length (rows of 0 to 4 real humans)."""
+    enc = build(name, pooling)
+    robot, humans, _ = scene(6, 4)
+    mask = torch.arange(4) < torch.tensor([0, 1, 2, 3, 4, 2]).unsqueeze(1)
+    results = []
+    for unpacked in (False, True):
+        enc.zero_grad(set_to_none=True)
+        with unpacked_lstm(unpacked):
+            out, _ = enc(robot, humans, mask)
+        out.square().sum().backward()
+        results.append((out.detach(), [p.grad for p in enc.parameters()]))
+    (packed, packed_grads), (padded, padded_grads) = results
+    torch.testing.assert_close(padded, packed, atol=1e-6, rtol=1e-5)
+    for a, b in zip(padded_grads, packed_grads, strict=True):
+        if a is None or b is None:
+            assert a is None and b is None
+        else:
+            torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-4)
 
 
 @pytest.mark.parametrize(("name", "pooling"), VARIANTS, ids=IDS)

@@ -27,9 +27,21 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from crowdplan.algos.cuda_graph import GraphedStep
 from crowdplan.config import check_fields, spec
-from crowdplan.nets.encoders import Encoder, EncoderConfig, make_encoder
+from crowdplan.nets.encoders import Encoder, EncoderConfig, make_encoder, unpacked_lstm
 from crowdplan.nets.heads import PolicyHead, QHead
+
+UPDATE_STATS = (
+    "qf1_loss",
+    "qf2_loss",
+    "qf_loss",
+    "actor_loss",
+    "alpha_loss",
+    "alpha",
+    "entropy",
+    "qf_mean",
+)
 
 
 @dataclass
@@ -51,6 +63,13 @@ class DSACConfig:
         updates_per_step: gradient updates per environment transition (UTD ratio).
         parallel_update: run the critic half and the policy half of every update on two threads
             (for two free cores); the results are bitwise the same as on one thread.
+        cuda_graph: on a CUDA device, capture the whole update (both forward and backward
+            passes, the Adam steps, the target update) in one CUDA graph after a few eager
+            updates and replay it from then on (:mod:`crowdplan.algos.cuda_graph`): one launch
+            instead of a few hundred. Every update of such a run, eager or replayed, runs the
+            LSTM over the padded crowd (:func:`crowdplan.nets.encoders.unpacked_lstm`), so the
+            run is not bitwise the one without the graph. Needs the serial update, a constant
+            target entropy and no ``clip_q_targets`` (whose range is computed on the host).
         share_encoder: the policy reuses the critic's encoder (relation network / LSTM) instead of
             having its own; the shared encoder is then trained by the critic loss only and the
             policy sees its features detached (as in SAC-AE / DrQ). Default: separate encoders.
@@ -118,6 +137,7 @@ class DSACConfig:
     n_actions: int = spec(81, low=2)
     updates_per_step: float = spec(1.0, low=0.0, low_open=True)
     parallel_update: bool = False
+    cuda_graph: bool = False
     share_encoder: bool = False
     q_hidden: tuple[int, ...] = (128, 128)
     policy_hidden: tuple[int, ...] = (128, 128)
@@ -157,6 +177,18 @@ class DSACConfig:
             raise ValueError(
                 "dsac.bc_epochs clones the demonstrations' actions: set dsac.demo_episodes too"
             )
+        if self.cuda_graph:
+            conflicts = {
+                "parallel_update": self.parallel_update,
+                "target_entropy_anneal_updates": self.target_entropy_anneal_updates > 0,
+                "clip_q_targets": self.clip_q_targets,
+            }
+            for name, on in conflicts.items():
+                if on:
+                    raise ValueError(
+                        f"dsac.cuda_graph replays one fixed update: turn dsac.{name} off "
+                        "or dsac.cuda_graph off"
+                    )
         if self.return_min >= self.return_max:
             raise ValueError(
                 f"dsac.return_min ({self.return_min}) must be below dsac.return_max "
@@ -234,6 +266,11 @@ class DSAC:
             self.actor = Actor(
                 actor_encoder, config.n_actions, config.policy_hidden, config.share_encoder
             )
+        if config.cuda_graph and self.device.type != "cuda":
+            raise ValueError(
+                f"dsac.cuda_graph needs a CUDA device, not {str(self.device)!r}: set device: cuda "
+                "or turn dsac.cuda_graph off"
+            )
         self.critic.to(self.device)
         self.actor.to(self.device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
@@ -244,7 +281,10 @@ class DSAC:
         actor_params = self.actor.head if config.share_encoder else self.actor
         # One Adam per half of the update, so that each half can take its step on its own thread.
         self.critic_optimizer = torch.optim.Adam(
-            [{"params": list(self.critic.parameters()), "name": "critic"}], lr=config.lr, fused=True
+            [{"params": list(self.critic.parameters()), "name": "critic"}],
+            lr=config.lr,
+            fused=True,
+            capturable=config.cuda_graph,
         )
         self.actor_optimizer = torch.optim.Adam(
             [
@@ -253,12 +293,14 @@ class DSAC:
             ],
             lr=config.lr,
             fused=True,
+            capturable=config.cuda_graph,
         )
         self._critic_params = list(self.critic.parameters())
         self._actor_params = list(actor_params.parameters())
         self._log_alpha_min = math.log(config.alpha_min) if config.alpha_min > 0 else None
         self._target_params = list(self.critic_target.parameters())
         self._worker = ThreadPoolExecutor(1) if config.parallel_update else None
+        self._graphed = GraphedStep(self._update_tensors) if config.cuda_graph else None
         self.n_updates = 0
 
     @property
@@ -315,6 +357,19 @@ class DSAC:
         ``batch`` holds the keys of :meth:`crowdplan.algos.buffer.ReplayBuffer.sample`. Returns
         floats: ``qf1_loss, qf2_loss, qf_loss, actor_loss, alpha_loss, alpha, entropy, qf_mean``.
         """
+        # the policy stays frozen for the first actor_warmup_updates: a different update, so the
+        # graph is captured after them
+        with unpacked_lstm(self.config.cuda_graph):
+            if self._graphed is not None and self.n_updates >= self.config.actor_warmup_updates:
+                stats = self._graphed(batch)
+            else:
+                stats = self._update_tensors(batch)
+        self.n_updates += 1
+        return dict(zip(UPDATE_STATS, stats.tolist(), strict=True))
+
+    def _update_tensors(self, batch: dict[str, Tensor]) -> Tensor:
+        """The update of :meth:`update` without reading anything back to the host: returns its
+        statistics as one tensor in the order of :data:`UPDATE_STATS`."""
         obs = (batch["robot"], batch["humans"], batch["mask"])
         next_obs = (batch["next_robot"], batch["next_humans"], batch["next_mask"])
         alpha = self.log_alpha.detach().exp()
@@ -347,24 +402,11 @@ class DSAC:
             critic_stats = critic_job.result()
         if self.config.share_encoder:
             self._step_critic()
-        self.n_updates += 1
-
         qf1_loss, qf2_loss, qf_loss, qf_mean = critic_stats
         actor_loss, alpha_loss, entropy = actor_stats
-        stats = torch.stack(
+        return torch.stack(
             [qf1_loss, qf2_loss, qf_loss, actor_loss, alpha_loss, alpha, entropy, qf_mean]
-        ).tolist()
-        names = (
-            "qf1_loss",
-            "qf2_loss",
-            "qf_loss",
-            "actor_loss",
-            "alpha_loss",
-            "alpha",
-            "entropy",
-            "qf_mean",
         )
-        return dict(zip(names, stats, strict=True))
 
     def _critic_step(
         self,
@@ -526,8 +568,13 @@ class DSAC:
             critic_state, actor_state = _split_joint_optimizer_state(state["optimizer"])
         else:
             critic_state, actor_state = state["critic_optimizer"], state["actor_optimizer"]
-        self.critic_optimizer.load_state_dict(critic_state)
-        self.actor_optimizer.load_state_dict(actor_state)
+        for optimizer, saved in (
+            (self.critic_optimizer, critic_state),
+            (self.actor_optimizer, actor_state),
+        ):
+            optimizer.load_state_dict(saved)
+            for group in optimizer.param_groups:  # the saved flag is the saving run's
+                group["capturable"] = self.config.cuda_graph
         self.n_updates = int(state["n_updates"])
 
 

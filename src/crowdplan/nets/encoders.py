@@ -30,6 +30,9 @@ order.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 
 import torch
@@ -156,7 +159,7 @@ def _gather_rows(x: Tensor, index: Tensor) -> Tensor:
 def lstm_last_hidden(lstm: nn.LSTM, seq: Tensor, lengths: Tensor) -> Tensor:
     """Last hidden state of ``lstm`` over ``seq`` (B, T, D) whose first ``lengths[b]`` steps are
     valid. Rows of length 0 give zeros."""
-    if torch.compiler.is_exporting():
+    if torch.compiler.is_exporting() or _UNPACKED_LSTM.get():
         return _lstm_last_hidden_unpacked(lstm, seq, lengths)
     batch, steps = seq.shape[0], seq.shape[1]
     if steps == 0:
@@ -172,10 +175,26 @@ def lstm_last_hidden(lstm: nn.LSTM, seq: Tensor, lengths: Tensor) -> Tensor:
     return torch.where((lengths > 0).unsqueeze(-1), h_n[-1], 0.0)
 
 
+_UNPACKED_LSTM: ContextVar[bool] = ContextVar("unpacked_lstm", default=False)
+
+
+@contextmanager
+def unpacked_lstm(on: bool = True) -> Iterator[None]:
+    """Inside, :func:`lstm_last_hidden` never packs by length nor branches on the data (as in
+    graph export): what a CUDA graph can capture. A run that captures its update uses this for
+    every update, captured or not, so that all of them compute the same way."""
+    token = _UNPACKED_LSTM.set(on)
+    try:
+        yield
+    finally:
+        _UNPACKED_LSTM.reset(token)
+
+
 def _lstm_last_hidden_unpacked(lstm: nn.LSTM, seq: Tensor, lengths: Tensor) -> Tensor:
     """The same as :func:`lstm_last_hidden` without branching on the data or the sequence length
-    (for graph export): the LSTM is causal, so its output at step ``lengths[b] - 1`` is the state
-    after the last real element. One zero step is appended so that T = 0 still runs."""
+    (for graph export and CUDA-graph capture): the LSTM is causal, so its output at step
+    ``lengths[b] - 1`` is the state after the last real element. One zero step is appended so
+    that T = 0 still runs."""
     seq = torch.cat([seq, seq.new_zeros(seq.shape[0], 1, seq.shape[2])], dim=1)
     out, _ = lstm(seq)
     last = (lengths - 1).clamp(min=0).view(-1, 1, 1).expand(-1, 1, out.shape[2])
