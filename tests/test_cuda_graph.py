@@ -8,7 +8,7 @@ import math
 
 import pytest
 import torch
-from tiny_runs import flat_parameters, restored, train_tiny, without_clock
+from tiny_runs import TINY, flat_parameters, restored, train_tiny, without_clock
 
 from crowdplan.algos.dsac import DSAC, DSACConfig
 from crowdplan.nets.encoders import EncoderConfig
@@ -147,20 +147,7 @@ def test_a_state_saved_by_an_eager_run_resumes_under_the_graph():
     assert graphed.n_updates == 10
 
 
-GPU_TINY = {
-    "name": "tiny-graph",
-    "device": "cuda",
-    "num_envs": 2,
-    "random_steps": 16,
-    "learning_starts": 16,
-    "val_interval": 1000,
-    "checkpoint_interval": 1000,
-    "log_interval": 1000,
-    "test_episodes": 0,
-    "world": {"humans": 3, "time_limit": 4.0},
-    "encoder": {"name": "lsa"},
-    "dsac": {"batch_size": 16, "cuda_graph": True},
-}
+GPU_TINY = {**TINY, "device": "cuda", "dsac": {**TINY["dsac"], "cuda_graph": True}}
 
 
 @needs_cuda

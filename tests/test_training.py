@@ -10,24 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from tiny_runs import flat_parameters, restored, train_tiny, without_clock
+from tiny_runs import TINY, flat_parameters, restored, train_tiny, without_clock
 
 from crowdplan.training import Trainer, config_from_dict, load_config
-
-TINY = {
-    "name": "tiny",
-    "episodes": 6,
-    "num_envs": 2,
-    "random_steps": 16,
-    "learning_starts": 16,
-    "val_interval": 1000,
-    "checkpoint_interval": 1000,
-    "log_interval": 1000,
-    "test_episodes": 0,
-    "world": {"humans": 3, "time_limit": 4.0},
-    "encoder": {"name": "lsa"},
-    "dsac": {"batch_size": 16},
-}
 
 
 def _weights(trainer):

@@ -9,6 +9,22 @@ import torch
 
 from crowdplan.training import TrainConfig, Trainer, config_from_dict
 
+# A DSAC run of a few seconds through the real training loop.
+TINY = {
+    "name": "tiny",
+    "episodes": 6,
+    "num_envs": 2,
+    "random_steps": 16,
+    "learning_starts": 16,
+    "val_interval": 1000,
+    "checkpoint_interval": 1000,
+    "log_interval": 1000,
+    "test_episodes": 0,
+    "world": {"humans": 3, "time_limit": 4.0},
+    "encoder": {"name": "lsa"},
+    "dsac": {"batch_size": 16},
+}
+
 
 def train_tiny(base: dict, tmp_path: Path, name: str, episodes: int = 6, **changes) -> Trainer:
     """Train the config ``base`` (a YAML-like dict) with ``changes`` into ``tmp_path / name``."""
