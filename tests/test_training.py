@@ -211,7 +211,7 @@ def test_replay_buffer_holds_the_entropy_of_the_policy_that_acted(tmp_path):
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the error without CUDA")
 def test_cuda_without_cuda_is_explained(tmp_path):
     config = config_from_dict({**TINY, "device": "cuda"})
-    with pytest.raises(ValueError, match="CUDA is not available"):
+    with pytest.raises(ValueError, match="CUDA is not available here: set device: cpu"):
         Trainer(config, tmp_path / "run", progress=False)
 
 

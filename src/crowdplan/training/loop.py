@@ -91,7 +91,10 @@ class Trainer:
         # the commit of the code this process runs: read once, since the tree may move on
         self.code_version = git_hash()
         if config.device != "cpu" and not torch.cuda.is_available():
-            raise ValueError(f"device {config.device!r} was asked for but CUDA is not available")
+            raise ValueError(
+                f"device {config.device!r} was asked for but CUDA is not available here: set "
+                "device: cpu in the config (and dsac.cuda_graph: false if it is on)"
+            )
         self.device = torch.device(config.device)
         self.agent = get_algorithm(config.algo).make_agent(config, self.device)
         world_options = {
