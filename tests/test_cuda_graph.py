@@ -67,16 +67,26 @@ def random_batch(
     return {name: value.to(device) for name, value in cpu.items()}
 
 
-def exact_cuda() -> None:
-    torch.backends.cudnn.deterministic = True
-    torch.backends.cuda.matmul.allow_tf32 = False
-    torch.backends.cudnn.allow_tf32 = False
+@pytest.fixture
+def exact_cuda():
+    """Deterministic cuDNN and no TF32 for the test, restored after it."""
+    # (torch's backend flags are properties that pytest's monkeypatch cannot restore)
+    flags = [
+        (torch.backends.cudnn, "deterministic", True),
+        (torch.backends.cuda.matmul, "allow_tf32", False),
+        (torch.backends.cudnn, "allow_tf32", False),
+    ]
+    saved = [getattr(owner, name) for owner, name, _ in flags]
+    for owner, name, value in flags:
+        setattr(owner, name, value)
+    yield
+    for (owner, name, _), value in zip(flags, saved, strict=True):
+        setattr(owner, name, value)
 
 
 @needs_cuda
 @pytest.mark.parametrize("encoder", ["lsa", "rg", "sa"])
-def test_graphed_updates_follow_the_eager_ones(encoder):
-    exact_cuda()
+def test_graphed_updates_follow_the_eager_ones(encoder, exact_cuda):
     enc = EncoderConfig(name=encoder, max_humans=5)
     eager = DSAC(DSACConfig(batch_size=64, average_q=True), enc, device="cuda")
     graphed = DSAC(DSACConfig(batch_size=64, average_q=True, cuda_graph=True), enc, device="cuda")
@@ -94,10 +104,9 @@ def test_graphed_updates_follow_the_eager_ones(encoder):
 
 
 @needs_cuda
-def test_padded_crowds_give_the_eager_update_under_the_graph():
+def test_padded_crowds_give_the_eager_update_under_the_graph(exact_cuda):
     """Under the graph the LSTM runs over the padded sequence and reads each row's last real
     step instead of packing by length: the same numbers up to rounding."""
-    exact_cuda()
     enc = EncoderConfig(name="lsa", max_humans=5)
     eager = DSAC(DSACConfig(batch_size=64), enc, device="cuda")
     graphed = DSAC(DSACConfig(batch_size=64, cuda_graph=True), enc, device="cuda")
@@ -151,8 +160,7 @@ GPU_TINY = {**TINY, "device": "cuda", "dsac": {**TINY["dsac"], "cuda_graph": Tru
 
 
 @needs_cuda
-def test_a_graphed_run_repeats_itself_and_resumes_exactly(tmp_path):
-    exact_cuda()
+def test_a_graphed_run_repeats_itself_and_resumes_exactly(tmp_path, exact_cuda):
     straight = train_tiny(GPU_TINY, tmp_path, "straight", episodes=6)
     again = train_tiny(GPU_TINY, tmp_path, "again", episodes=6)
     assert straight.agent.core._graphed.graph is not None
