@@ -101,7 +101,7 @@ def test_grid_values_are_numbers_yaml_or_lists():
         ("nope.lr=1", "unknown key 'nope' in the top level"),
         ("dsac.lr=", "--set dsac.lr: empty value"),
         ("dsac.lr=1e-4,,3e-4", "--set dsac.lr: empty value"),
-        ("dsac.lr", "--set takes KEY=V1,V2"),
+        ("dsac.lr", "--set takes KEY=VALUE"),
         ("seed=1,2", "give seeds with --seeds"),
     ],
 )

@@ -40,6 +40,7 @@ def finished_run(tmp_path_factory):
         (["--humans", "4"], "--humans cannot apply"),
         (["--config", "configs/lsa_dsac.yaml"], "--config cannot apply"),
         (["--episodes", "1"], "already trained 2 episodes; --episodes must be at least"),
+        (["--set", "dsac.lr=1e-3"], "--set cannot apply"),
     ],
 )
 def test_resume_refuses_what_it_cannot_honour(finished_run, extra, fragment, capsys):
@@ -115,3 +116,35 @@ def test_lookahead_flag_sets_the_value_rl_mode_and_is_refused_elsewhere(tmp_path
     assert "--lookahead applies to the value-network baselines" in capsys.readouterr().err
     assert main(["train", "--out", str(run), "--resume", "--lookahead", "oracle"]) == 2
     assert "--lookahead cannot apply" in capsys.readouterr().err
+
+
+def test_set_assigns_config_keys_of_a_new_run(finished_run, tmp_path):
+    config, _ = finished_run
+    run = tmp_path / "run"
+    sets = ["--set", "dsac.lr=1e-3", "--set", "dsac.q_hidden=[16,16]", "--set", "world.humans=1"]
+    assert main(["train", "--config", str(config), "--out", str(run), *sets, "-q"]) == 0
+    written = yaml.safe_load((run / "config.yaml").read_text())
+    assert written["dsac"]["lr"] == 1e-3
+    assert written["dsac"]["q_hidden"] == [16, 16]
+    assert written["world"]["humans"] == 1
+
+
+@pytest.mark.parametrize(
+    ("sets", "fragment"),
+    [
+        (["dsac.lr=fast"], "--set: dsac.lr must be a number, got 'fast'"),
+        (["dsac.lrr=1"], "unknown key 'lrr' in dsac; valid keys: ['actor_warmup_updates'"),
+        (["value_rl.gamma=0.9"], "unknown key 'value_rl' in the top level"),
+        (["dsac.lr=1e-4,3e-4"], "takes one value, got 2; to train each, use crowdplan sweep"),
+        (["world.humans=3"], "--set world.humans and --humans both set world.humans"),
+        (["dsac.lr"], "--set takes KEY=VALUE"),
+    ],
+)
+def test_set_refuses_bad_keys_values_and_contradictions(
+    finished_run, tmp_path, sets, fragment, capsys
+):
+    config, _ = finished_run
+    argv = ["train", "--config", str(config), "--out", str(tmp_path / "run"), "--humans", "2"]
+    assert main([*argv, *(arg for s in sets for arg in ("--set", s))]) == 2
+    assert fragment in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()

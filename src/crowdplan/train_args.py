@@ -70,6 +70,16 @@ def add_train_args(parser: argparse.ArgumentParser) -> None:
         "at constant velocity or queried from the simulator (CrowdNav) (default: the config's "
         "value_rl.lookahead)",
     )
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=None,
+        dest="overrides",
+        metavar="KEY=VALUE",
+        help="set one config key of a new run, as config.yaml writes it (e.g. dsac.lr=1e-4, "
+        "world.scenario=square_crossing, dsac.q_hidden=[128,128]); repeatable; checked like the "
+        "YAML file (default: the config's values)",
+    )
     parser.add_argument("--out", default=None, help="run folder (default: runs/<name>-s<seed>)")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
     parser.add_argument(

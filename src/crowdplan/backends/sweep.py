@@ -38,6 +38,7 @@ import yaml
 from crowdplan.analysis.stats import across_seeds
 from crowdplan.backends import Backend, JobInterrupted
 from crowdplan.command import EXIT_INTERRUPTED
+from crowdplan.config_overrides import assign, parse_assignments
 from crowdplan.evaluation import format_value
 from crowdplan.io import atomic_write, write_json
 from crowdplan.training.cli import main as train_main
@@ -83,77 +84,15 @@ def parse_seeds(text: str) -> list[int]:
     return sorted(seeds)
 
 
-def _split_values(text: str) -> list[str]:
-    """Split at commas outside brackets, so that ``[64,64],[128,128]`` is two values."""
-    values, depth, current = [], 0, ""
-    for char in text:
-        depth += char in "[{"
-        depth -= char in "]}"
-        if char == "," and depth == 0:
-            values.append(current)
-            current = ""
-        else:
-            current += char
-    values.append(current)
-    return values
-
-
 def parse_grid(assignments: list[str], base: dict[str, Any]) -> list[tuple[str, list[Any]]]:
     """``["dsac.lr=1e-4,3e-4", ...]`` -> ``[("dsac.lr", [0.0001, 0.0003]), ...]``.
 
     Keys are dotted paths into the config as ``config.yaml`` writes it; each must exist there.
-    Values are YAML scalars or flow sequences.
+    Values are YAML scalars or flow sequences (:mod:`crowdplan.config_overrides`).
     """
-    grid: list[tuple[str, list[Any]]] = []
-    for assignment in assignments:
-        key, sep, text = assignment.partition("=")
-        key = key.strip()
-        if not sep or not key:
-            raise ValueError(
-                f"--set takes KEY=V1,V2,... (e.g. dsac.lr=1e-4,3e-4), got {assignment!r}"
-            )
-        if key == "seed":
-            raise ValueError("--set seed=...: give seeds with --seeds (e.g. --seeds 0-9)")
-        if key in (k for k, _ in grid):
-            raise ValueError(f"--set {key} is given twice; list all its values in one --set")
-        _lookup(base, key)
-        items = [item.strip() for item in _split_values(text)]
-        if not text.strip() or any(not item for item in items):
-            raise ValueError(f"--set {key}: empty value in {text!r}; give V1,V2,... (none empty)")
-        try:
-            values = [_parse_value(item) for item in items]
-        except yaml.YAMLError as error:
-            raise ValueError(f"--set {key}: a value is not valid YAML: {error}") from error
-        grid.append((key, values))
-    return grid
-
-
-def _parse_value(text: str) -> Any:
-    """A number as Python reads it (YAML 1.1 takes ``1e-4`` for a string), else YAML."""
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return yaml.safe_load(text)
-
-
-def _lookup(data: dict[str, Any], key: str) -> Any:
-    node: Any = data
-    for depth, part in enumerate(key.split(".")):
-        if not isinstance(node, dict) or part not in node:
-            where = ".".join(key.split(".")[:depth]) or "the top level"
-            valid = sorted(node) if isinstance(node, dict) else []
-            raise ValueError(f"--set {key}: unknown key {part!r} in {where}; valid keys: {valid}")
-        node = node[part]
-    return node
-
-
-def _assign(data: dict[str, Any], key: str, value: Any) -> None:
-    *parents, last = key.split(".")
-    for part in parents:
-        data = data[part]
-    data[last] = value
+    if any(a.partition("=")[0].strip() == "seed" for a in assignments):
+        raise ValueError("--set seed=...: give seeds with --seeds (e.g. --seeds 0-9)")
+    return parse_assignments(assignments, base)
 
 
 def _label(value: Any) -> str:
@@ -174,7 +113,7 @@ def expand(
         for seed in seeds:
             data = copy.deepcopy(base)
             for key, value in pairs:
-                _assign(data, key, value)
+                assign(data, key, value)
             data.update(seed=seed, torch_threads=threads)
             try:
                 config = config_from_dict(data)

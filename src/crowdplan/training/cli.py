@@ -11,6 +11,7 @@ import yaml
 
 from crowdplan import evaluation
 from crowdplan.command import run_command
+from crowdplan.config_overrides import assign, parse_assignments
 from crowdplan.io import atomic_write
 from crowdplan.train_args import add_train_args
 from crowdplan.training.config import TrainConfig, config_from_dict, load_config
@@ -26,10 +27,46 @@ def _with_algo_option(config: TrainConfig, field: str, value: Any, applies_to: s
     return dataclasses.replace(config, algo_config=params)
 
 
+# (flag, its argparse attribute, the config key it sets): a flag and a --set of the same key
+# would contradict each other
+_FLAG_KEYS = (
+    ("--seed", "seed", "seed"),
+    ("--humans", "humans", "world.humans"),
+    ("--episodes", "episodes", "episodes"),
+    ("--val-interval", "val_interval", "val_interval"),
+    ("--[no-]keep-validation-models", "keep_validation_models", "keep_validation_models"),
+    ("--policy-average", "policy_average", "policy_average"),
+    ("--[no-]parallel-update", "parallel_update", "dsac.parallel_update"),
+    ("--lookahead", "lookahead", "value_rl.lookahead"),
+)
+
+
+def _with_overrides(config: TrainConfig, args: argparse.Namespace) -> TrainConfig:
+    """``config`` with the ``--set KEY=VALUE`` assignments of the command line, checked like a
+    YAML file's keys and values."""
+    data = config.to_dict()
+    for key, values in parse_assignments(args.overrides, data):
+        if len(values) != 1:
+            raise ValueError(
+                f"--set {key}: crowdplan train takes one value, got {len(values)}; to train "
+                f"each, use crowdplan sweep --config {args.config} --set {key}=..."
+            )
+        for flag, attribute, flag_key in _FLAG_KEYS:
+            if flag_key == key and getattr(args, attribute) is not None:
+                raise ValueError(f"--set {key} and {flag} both set {key}; give one of them")
+        assign(data, key, values[0])
+    try:
+        return config_from_dict(data)
+    except (ValueError, TypeError) as error:
+        raise ValueError(f"--set: {error}") from error
+
+
 def _new_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
     if not args.config:
         raise ValueError("--config is required for a new run (e.g. configs/lsa_dsac_aln_avg.yaml)")
     config = load_config(args.config)
+    if args.overrides:
+        config = _with_overrides(config, args)
     if args.seed is not None:
         config = dataclasses.replace(config, seed=args.seed)
     if args.humans is not None:
@@ -65,6 +102,7 @@ def _resumed_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
             ("--seed", args.seed),
             ("--humans", args.humans),
             ("--lookahead", args.lookahead),
+            ("--set", args.overrides),
         )
         if value is not None
     ]
