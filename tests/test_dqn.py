@@ -40,6 +40,9 @@ def test_double_dqn_target_on_known_numbers():
     # the online network picks a' (1, then 0); the target network values it; done cuts it off
     expected = torch.tensor([1.0 + 0.5 * 3.0, 0.5 + 0.5 * 4.0, -0.25])
     assert torch.equal(double_dqn_target(reward, done, online, target, 0.5), expected)
+    # clip_q_targets: an overestimated bootstrap is held to the reachable returns
+    clipped = double_dqn_target(reward, done, online, target, 0.5, bounds=(-0.2, 2.0))
+    assert torch.equal(clipped, torch.tensor([2.0, 2.0, -0.2]))
 
 
 def test_epsilon_falls_linearly_over_episodes(tmp_path):
@@ -97,6 +100,7 @@ def test_preset_loads():
         ({**TINY, "a2c": {}}, "section(s) ['a2c'] belong to another algorithm"),
         ({**TINY, "dqn": {"epsilon_end": 1.5}}, "dqn.epsilon_end must be >= 0.0 and <= 1.0"),
         ({**TINY, "dqn": {"tau": 0.1}}, "unknown key(s) ['tau'] in dqn"),
+        ({**TINY, "dqn": {"return_min": 1.0, "return_max": 1.0}}, "dqn.return_min (1.0) must be"),
     ],
 )
 def test_bad_config_is_explained(data, fragment):

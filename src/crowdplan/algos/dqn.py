@@ -49,6 +49,10 @@ class DQNConfig:
         q_hidden: hidden sizes of the Q head.
         learning_starts: transitions in the replay buffer before the first update.
         buffer_size: replay capacity in transitions.
+        clip_q_targets: clamp the target ``y`` to ``[return_min, return_max]``, the discounted
+            returns the world can give (as DSAC's option; docs/baselines.md, "RG-DQN"): a
+            bootstrapped target outside them can only be the network's own overestimate.
+        return_min, return_max: those bounds (DSAC's defaults, derived for gamma 0.95 per step).
     """
 
     gamma: float = spec(0.95, low=0.0, high=1.0)
@@ -63,9 +67,17 @@ class DQNConfig:
     q_hidden: tuple[int, ...] = (128, 128)
     learning_starts: int = spec(1000, low=1)
     buffer_size: int = spec(200_000, low=1)
+    clip_q_targets: bool = False
+    return_min: float = -2.5
+    return_max: float = 1.5
 
     def __post_init__(self) -> None:
         check_fields(self, "dqn")
+        if self.return_min >= self.return_max:
+            raise ValueError(
+                f"dqn.return_min ({self.return_min}) must be below dqn.return_max "
+                f"({self.return_max})"
+            )
 
 
 class QNetwork(nn.Module):
@@ -82,11 +94,18 @@ class QNetwork(nn.Module):
 
 
 def double_dqn_target(
-    reward: Tensor, done: Tensor, next_q_online: Tensor, next_q_target: Tensor, gamma: float
+    reward: Tensor,
+    done: Tensor,
+    next_q_online: Tensor,
+    next_q_target: Tensor,
+    gamma: float,
+    bounds: tuple[float, float] | None = None,
 ) -> Tensor:
-    """``r + gamma (1 - done) Q_target(s', argmax_a' Q_online(s', a'))``, all (B,) / (B, A)."""
+    """``r + gamma (1 - done) Q_target(s', argmax_a' Q_online(s', a'))``, all (B,) / (B, A),
+    clamped to ``bounds`` (low, high) if given."""
     best = next_q_online.argmax(dim=1, keepdim=True)
-    return reward + gamma * (1.0 - done) * next_q_target.gather(1, best).squeeze(1)
+    target = reward + gamma * (1.0 - done) * next_q_target.gather(1, best).squeeze(1)
+    return target if bounds is None else target.clamp(*bounds)
 
 
 class DQNPolicy(GreedyPolicy):
@@ -151,7 +170,12 @@ class DQNAgent:
         with torch.no_grad():
             nxt = (batch["next_robot"], batch["next_humans"], batch["next_mask"])
             target = double_dqn_target(
-                batch["reward"], batch["done"], self.q(*nxt)[0], self.q_target(*nxt)[0], p.gamma
+                batch["reward"],
+                batch["done"],
+                self.q(*nxt)[0],
+                self.q_target(*nxt)[0],
+                p.gamma,
+                (p.return_min, p.return_max) if p.clip_q_targets else None,
             )
         q, _ = self.q(batch["robot"], batch["humans"], batch["mask"])
         chosen = q.gather(1, batch["action"].unsqueeze(1)).squeeze(1)
