@@ -32,7 +32,10 @@ def parse_assignments(assignments: list[str], base: dict[str, Any]) -> list[tupl
         lookup(base, key)
         items = [item.strip() for item in _split_values(text)]
         if not text.strip() or any(not item for item in items):
-            raise ValueError(f"--set {key}: empty value in {text!r}; give V1,V2,... (none empty)")
+            raise ValueError(
+                f"--set {key}: empty value in {text!r}; give a value "
+                "(a sweep: V1,V2,..., none empty)"
+            )
         try:
             values = [_parse_value(item) for item in items]
         except yaml.YAMLError as error:
