@@ -308,6 +308,12 @@ def check_fields(obj: Any, where: str) -> None:
             raise ValueError(f"{name} must be {_range_text(f.metadata)}, got {value!r}")
 
 
+def check_below(low_name: str, low: float, high_name: str, high: float) -> None:
+    """Refuse a pair of bounds whose lower one is not below the upper one."""
+    if low >= high:
+        raise ValueError(f"{low_name} ({low}) must be below {high_name} ({high})")
+
+
 def _range_text(metadata: Any) -> str:
     parts = []
     if metadata.get("low") is not None:

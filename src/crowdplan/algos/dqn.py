@@ -22,7 +22,7 @@ from torch import Tensor, nn
 
 from crowdplan.algos.base import Observation, StepFeatures, Transitions
 from crowdplan.algos.buffer import ReplayBuffer
-from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
+from crowdplan.config import WorldConfig, check_below, check_fields, from_dict, spec, to_dict
 from crowdplan.models import GreedyPolicy, load_weights, require_format
 from crowdplan.nets.encoders import Encoder, EncoderConfig, make_encoder, mlp
 from crowdplan.sim.actions import N_ACTIONS
@@ -73,11 +73,7 @@ class DQNConfig:
 
     def __post_init__(self) -> None:
         check_fields(self, "dqn")
-        if self.return_min >= self.return_max:
-            raise ValueError(
-                f"dqn.return_min ({self.return_min}) must be below dqn.return_max "
-                f"({self.return_max})"
-            )
+        check_below("dqn.return_min", self.return_min, "dqn.return_max", self.return_max)
 
 
 class QNetwork(nn.Module):

@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from crowdplan.algos.cuda_graph import GraphedStep
-from crowdplan.config import check_fields, spec
+from crowdplan.config import check_below, check_fields, spec
 from crowdplan.nets.encoders import Encoder, EncoderConfig, make_encoder, unpacked_lstm
 from crowdplan.nets.heads import PolicyHead, QHead
 
@@ -189,11 +189,7 @@ class DSACConfig:
                         f"dsac.cuda_graph replays one fixed update: turn dsac.{name} off "
                         "or dsac.cuda_graph off"
                     )
-        if self.return_min >= self.return_max:
-            raise ValueError(
-                f"dsac.return_min ({self.return_min}) must be below dsac.return_max "
-                f"({self.return_max})"
-            )
+        check_below("dsac.return_min", self.return_min, "dsac.return_max", self.return_max)
 
 
 class SoftQNetwork(nn.Module):

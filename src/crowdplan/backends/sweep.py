@@ -90,9 +90,10 @@ def parse_grid(assignments: list[str], base: dict[str, Any]) -> list[tuple[str, 
     Keys are dotted paths into the config as ``config.yaml`` writes it; each must exist there.
     Values are YAML scalars or flow sequences (:mod:`crowdplan.config_overrides`).
     """
-    if any(a.partition("=")[0].strip() == "seed" for a in assignments):
+    grid = parse_assignments(assignments, base)
+    if any(key == "seed" for key, _ in grid):
         raise ValueError("--set seed=...: give seeds with --seeds (e.g. --seeds 0-9)")
-    return parse_assignments(assignments, base)
+    return grid
 
 
 def _label(value: Any) -> str:
