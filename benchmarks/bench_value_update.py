@@ -2,6 +2,7 @@
 forward pass per drawn batch.
 
     python benchmarks/bench_value_update.py [--network sarl] [--humans 5] [--updates 1000]
+        [--threads 2]
 
 crowdplan (:meth:`crowdplan.algos.value_rl.ValueRLAgent.update`): ``V_target(s')`` of every stored
 transition is cached and recomputed in batches of 4096 once per target copy. Its cost per update
@@ -14,6 +15,11 @@ same buffer of real transitions (random actions in circle_crossing).
 
 Times are this process's CPU time (``time.process_time``), steadier than wall-clock time when
 other work shares the machine; one torch thread. Output: stdout only.
+
+A second table (``--threads N``, N > 1) times crowdplan's update on one torch thread and on N, by
+wall clock this time (the CPU time of N threads adds up), alternating the two settings within
+each round; the rounds' medians and the ratio. Only meaningful on an otherwise idle machine with
+N free cores.
 """
 
 from __future__ import annotations
@@ -87,6 +93,9 @@ def main() -> None:
     parser.add_argument("--updates", type=int, default=1000, help="updates per timing")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--buffer", type=int, default=100_000)
+    parser.add_argument(
+        "--threads", type=int, default=1, help="also time the update on this many torch threads"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     config = config_from_dict(
@@ -130,6 +139,30 @@ def main() -> None:
         f"| crowdplan: cached target values (full refresh {refresh_time:.2f} s "
         f"per {UPDATES_PER_COPY} updates) | {cached * 1e3:.3f} | {reference / cached:.2f}x faster |"
     )
+    if args.threads > 1:
+        print_threads_table(agent, args.threads, args.updates, args.repeats)
+
+
+def print_threads_table(agent, threads: int, updates: int, repeats: int) -> None:
+    """Wall-clock ms per cached update on one torch thread and on ``threads``."""
+    rows = []
+    for _ in range(repeats):
+        row = []
+        for count in (1, threads):
+            torch.set_num_threads(count)
+            cached_updates(agent, 20)  # warm the thread pool up
+            start = time.perf_counter()
+            cached_updates(agent, updates)
+            row.append((time.perf_counter() - start) / updates)
+        rows.append(row)
+    torch.set_num_threads(1)
+    one, many = np.median(np.array(rows), axis=0)
+    print()
+    print(f"# the same update by wall clock, 1 and {threads} torch threads (median of {repeats})")
+    print("| torch threads | ms per update | ratio |")
+    print("|---|---|---|")
+    print(f"| 1 | {one * 1e3:.3f} | 1.00 |")
+    print(f"| {threads} | {many * 1e3:.3f} | {one / many:.2f}x faster |")
 
 
 if __name__ == "__main__":

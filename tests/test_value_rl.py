@@ -161,7 +161,6 @@ def test_cached_target_values_follow_new_transitions_and_target_copies(tmp_path)
 
 
 # ---------------------------------------------------------------------- runs
-# ---------------------------------------------------------------------- runs
 
 
 def _weights(trainer):
@@ -175,6 +174,23 @@ def test_same_seed_twice_is_identical_and_another_seed_differs(tmp_path):
     assert a.agent.n_updates > 0
     c = train_tiny(TINY, tmp_path, "c", seed=1)
     assert not torch.equal(_weights(a), _weights(c))
+
+
+def test_two_torch_threads_give_the_same_run_twice(tmp_path):
+    # the SARL preset trains on two threads: batches large enough that kernels split their work
+    config = {
+        **TINY,
+        "torch_threads": 2,
+        "world": {"humans": 5, "time_limit": 4.0},
+        "value_rl": {**TINY["value_rl"], "batch_size": 100},
+    }
+    try:
+        a, b = train_tiny(config, tmp_path, "a"), train_tiny(config, tmp_path, "b")
+    finally:
+        torch.set_num_threads(1)
+    assert json.loads((a.run_dir / "meta.json").read_text())["torch_threads"] == 2
+    assert torch.equal(_weights(a), _weights(b))
+    assert without_clock(a.episodes) == without_clock(b.episodes)
 
 
 def test_resume_after_stop_continues_exactly(tmp_path):

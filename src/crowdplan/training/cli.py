@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from pathlib import Path
-from typing import Any
 
 import yaml
 
@@ -18,27 +17,58 @@ from crowdplan.training.config import TrainConfig, config_from_dict, load_config
 from crowdplan.training.loop import Trainer
 
 
-def _with_algo_option(config: TrainConfig, field: str, value: Any, applies_to: str) -> TrainConfig:
-    """``config`` with its algorithm's ``field`` set to ``value`` from a command-line flag;
-    an algorithm without that field is refused with ``applies_to`` and the run's algorithm."""
-    if not hasattr(config.algo_config, field):
-        raise ValueError(f"{applies_to}; this run trains {config.algo!r}")
-    params = dataclasses.replace(config.algo_config, **{field: value})
-    return dataclasses.replace(config, algo_config=params)
+@dataclasses.dataclass(frozen=True)
+class _Flag:
+    """A ``crowdplan train`` flag that sets one config key."""
+
+    name: str  # as --help spells it
+    attribute: str  # its argparse destination
+    key: str  # the config key it sets
+    on_resume: bool  # whether it may change when a run resumes
+    applies_to: str = ""  # for an algorithm's key: why a run of another algorithm refuses it
 
 
-# (flag, its argparse attribute, the config key it sets): a flag and a --set of the same key
-# would contradict each other
-_FLAG_KEYS = (
-    ("--seed", "seed", "seed"),
-    ("--humans", "humans", "world.humans"),
-    ("--episodes", "episodes", "episodes"),
-    ("--val-interval", "val_interval", "val_interval"),
-    ("--[no-]keep-validation-models", "keep_validation_models", "keep_validation_models"),
-    ("--policy-average", "policy_average", "policy_average"),
-    ("--[no-]parallel-update", "parallel_update", "dsac.parallel_update"),
-    ("--lookahead", "lookahead", "value_rl.lookahead"),
+_FLAGS = (
+    _Flag("--seed", "seed", "seed", on_resume=False),
+    _Flag("--humans", "humans", "world.humans", on_resume=False),
+    _Flag(
+        "--lookahead",
+        "lookahead",
+        "value_rl.lookahead",
+        False,
+        "--lookahead applies to the value-network baselines (algo: value_rl)",
+    ),
+    _Flag("--episodes", "episodes", "episodes", on_resume=True),
+    _Flag("--val-interval", "val_interval", "val_interval", on_resume=True),
+    _Flag(
+        "--[no-]keep-validation-models",
+        "keep_validation_models",
+        "keep_validation_models",
+        on_resume=True,
+    ),
+    _Flag("--policy-average", "policy_average", "policy_average", on_resume=True),
+    _Flag(
+        "--[no-]parallel-update",
+        "parallel_update",
+        "dsac.parallel_update",
+        True,
+        "--[no-]parallel-update applies to DSAC's two-thread update",
+    ),
 )
+
+
+def _with_flags(config: TrainConfig, args: argparse.Namespace) -> TrainConfig:
+    """``config`` with the keys that the given flags set (those that may change on resume only,
+    for a resumed run), checked like a YAML file's."""
+    data = config.to_dict()
+    for flag in _FLAGS:
+        value = getattr(args, flag.attribute)
+        if value is None or (args.resume and not flag.on_resume):
+            continue
+        if flag.applies_to and flag.key.split(".")[0] not in data:
+            raise ValueError(f"{flag.applies_to}; this run trains {config.algo!r}")
+        assign(data, flag.key, value)
+    return config_from_dict(data)
 
 
 def _with_overrides(config: TrainConfig, args: argparse.Namespace) -> TrainConfig:
@@ -51,9 +81,9 @@ def _with_overrides(config: TrainConfig, args: argparse.Namespace) -> TrainConfi
                 f"--set {key}: crowdplan train takes one value, got {len(values)}; to train "
                 f"each, use crowdplan sweep --config {args.config} --set {key}=..."
             )
-        for flag, attribute, flag_key in _FLAG_KEYS:
-            if flag_key == key and getattr(args, attribute) is not None:
-                raise ValueError(f"--set {key} and {flag} both set {key}; give one of them")
+        for flag in _FLAGS:
+            if flag.key == key and getattr(args, flag.attribute) is not None:
+                raise ValueError(f"--set {key} and {flag.name} both set {key}; give one of them")
         assign(data, key, values[0])
     try:
         return config_from_dict(data)
@@ -67,17 +97,7 @@ def _new_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
     config = load_config(args.config)
     if args.overrides:
         config = _with_overrides(config, args)
-    if args.seed is not None:
-        config = dataclasses.replace(config, seed=args.seed)
-    if args.humans is not None:
-        config = dataclasses.replace(config, world=config.world.replace(humans=args.humans))
-    if args.lookahead is not None:
-        config = _with_algo_option(
-            config,
-            "lookahead",
-            args.lookahead,
-            "--lookahead applies to the value-network baselines (algo: value_rl)",
-        )
+    config = _with_flags(config, args)
     run_dir = Path(args.out or f"runs/{config.name}-s{config.seed}")
     if (run_dir / "checkpoint.pt").exists():
         raise ValueError(f"{run_dir} already holds a run; use --resume or another --out")
@@ -96,48 +116,25 @@ def _resumed_run_config(args: argparse.Namespace) -> tuple[TrainConfig, Path]:
     if not args.out:
         raise ValueError("--resume needs --out pointing at the run folder to continue")
     fixed = [
-        flag
-        for flag, value in (
-            ("--config", args.config),
-            ("--seed", args.seed),
-            ("--humans", args.humans),
-            ("--lookahead", args.lookahead),
-            ("--set", args.overrides),
-        )
-        if value is not None
+        name for name, value in (("--config", args.config), ("--set", args.overrides)) if value
     ]
+    fixed += [f.name for f in _FLAGS if not f.on_resume and getattr(args, f.attribute) is not None]
     if fixed:
+        mutable = [f.name for f in _FLAGS if f.on_resume]
         raise ValueError(
             f"--resume continues the run in {args.out} with its own config.yaml, so "
-            f"{' and '.join(fixed)} cannot apply; only --episodes, --val-interval, "
-            "--[no-]keep-validation-models, --policy-average and --[no-]parallel-update may "
-            "change on resume "
-            "(start a new --out to change the rest)"
+            f"{' and '.join(fixed)} cannot apply; only {', '.join(mutable[:-1])} and "
+            f"{mutable[-1]} may change on resume (start a new --out to change the rest)"
         )
     run_dir = Path(args.out)
     if not (run_dir / "checkpoint.pt").is_file():
         raise FileNotFoundError(f"{run_dir} holds no checkpoint.pt to resume from")
-    return load_config(run_dir / "config.yaml", legacy_defaults=True), run_dir
+    return _with_flags(load_config(run_dir / "config.yaml", legacy_defaults=True), args), run_dir
 
 
 def train_from_cli(args: argparse.Namespace) -> int:
     """Run ``crowdplan train``; returns the exit status (130 when stopped by a signal)."""
     config, run_dir = _resumed_run_config(args) if args.resume else _new_run_config(args)
-    overrides = {
-        "episodes": args.episodes,
-        "val_interval": args.val_interval,
-        "keep_validation_models": args.keep_validation_models,
-        "policy_average": args.policy_average,
-    }
-    config = dataclasses.replace(config, **{k: v for k, v in overrides.items() if v is not None})
-    if args.parallel_update is not None:
-        config = _with_algo_option(
-            config,
-            "parallel_update",
-            args.parallel_update,
-            "--[no-]parallel-update applies to DSAC's two-thread update",
-        )
-    config = config_from_dict(config.to_dict())  # the same checks as a YAML file gets
     trainer = Trainer(config, run_dir, progress=not args.no_progress, quiet=args.quiet)
     if args.resume:
         trainer.restore(run_dir / "checkpoint.pt")

@@ -45,7 +45,8 @@ class TrainConfig:
         checkpoint_interval: episodes between checkpoints.
         log_interval: episodes between progress lines and update-statistics rows.
         test_episodes: test cases evaluated at the end (0 skips the final test).
-        torch_threads: torch intra-op threads (1 is fastest for these small networks).
+        torch_threads: torch intra-op threads (1 is fastest for most of these small networks;
+            SARL's updates gain from 2 on an idle 2-core machine, docs/benchmarks.md).
         device: where the networks train, "cpu" or a CUDA device such as "cuda" (optional).
         world: the training world.
         encoder: the representation learner of algorithms that take one.
