@@ -1,6 +1,7 @@
 """One greedy SARL decision (81-action one-step lookahead): batched against a CrowdNav-style loop.
 
     python benchmarks/bench_lookahead.py [--quick] [--humans 5 10] [--envs 1 64] [--repeats 5]
+        [--threads 2]
 
 crowdplan: :func:`crowdplan.sim.lookahead.one_step` + :func:`~crowdplan.sim.lookahead.action_values`
 for E environments x 81 actions x N humans in one pass (numpy propagation, the world's reward, one
@@ -19,6 +20,10 @@ core's dense float32 matmul rate, measured in the same run on one large matmul.
 
 Times are this process's CPU time (``time.process_time``), steadier than wall-clock time when
 other work shares the machine; one torch thread. Output: stdout only.
+
+``--threads N`` (N > 1) adds a third table: the batched decision by wall clock on one torch
+thread and on N (the CPU time of N threads adds up), alternating within each repeat, median of
+the repeats. Only meaningful on an otherwise idle machine with N free cores.
 """
 
 from __future__ import annotations
@@ -140,6 +145,9 @@ def main() -> None:
         help="environments the reference is timed on (its cost is linear in E)",
     )
     parser.add_argument("--quick", action="store_true", help="one repeat, tiny sizes (smoke test)")
+    parser.add_argument(
+        "--threads", type=int, default=1, help="also time the batched decision on this many threads"
+    )
     args = parser.parse_args()
     if args.quick:
         args.repeats, args.reference_envs = 1, 1
@@ -178,6 +186,43 @@ def main() -> None:
             f"| {n} | {envs} | {flops / 1e6:.1f} | {floor * 1e3:.3f} | {fast * 1e3:.3f} "
             f"| {fast / floor:.1f}x the floor |"
         )
+    if args.threads > 1:
+        print_threads_table(net, args.humans, args.envs, args.threads, args.repeats)
+
+
+CALLS_PER_TIMING = 5
+
+
+def print_threads_table(
+    net, humans: list[int], envs_list: list[int], threads: int, repeats: int
+) -> None:
+    """Wall-clock ms per batched decision on one torch thread and on ``threads``."""
+    print()
+    print(
+        f"the batched decision by wall clock, 1 and {threads} torch threads (median of {repeats}):"
+    )
+    print()
+    print(f"| N | E | 1 thread ms/decision | {threads} threads ms/decision | ratio |")
+    print("|---|---|---|---|---|")
+    for n in humans:
+        config = WorldConfig(humans=n, action_frame="world")
+        gamma = step_discount(0.9, config)
+        for envs in envs_list:
+            decide = partial(batched, net, config, gamma, *_observations(config, envs))
+            rounds = []
+            for _ in range(repeats):
+                row = []
+                for count in (1, threads):
+                    torch.set_num_threads(count)
+                    decide()  # warm the thread pool up
+                    start = time.perf_counter()
+                    for _ in range(CALLS_PER_TIMING):
+                        decide()
+                    row.append((time.perf_counter() - start) / (CALLS_PER_TIMING * envs))
+                rounds.append(row)
+            one, many = np.median(np.array(rounds), axis=0)
+            print(f"| {n} | {envs} | {one * 1e3:.3f} | {many * 1e3:.3f} | {one / many:.2f}x |")
+    torch.set_num_threads(1)
 
 
 if __name__ == "__main__":

@@ -117,10 +117,13 @@ def test_action_values_add_the_discounted_value_of_non_terminal_candidates():
 
 def test_bench_lookahead_quick():
     script = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_lookahead.py"
-    args = ["--quick", "--humans", "2", "--envs", "2"]
+    args = ["--quick", "--humans", "2", "--envs", "2", "--threads", "2"]
     result = subprocess.run(
         [sys.executable, str(script), *args], capture_output=True, text=True, timeout=300
     )
     assert result.returncode == 0, result.stderr
     row = next(line for line in result.stdout.splitlines() if line.startswith("| 2 | 2 |"))
     assert float(row.split("|")[-2]) < 1e-5  # batched and reference action values agree
+    threads_table = result.stdout.split("1 and 2 torch threads")[1]
+    row = next(line for line in threads_table.splitlines() if line.startswith("| 2 | 2 |"))
+    assert float(row.split("|")[-2].strip().rstrip("x")) > 0
