@@ -167,24 +167,6 @@ def _weights(trainer):
     return flat_parameters(trainer.agent.net)
 
 
-def test_fused_sgd_takes_the_same_steps_as_the_default():
-    # the agents use fused=True for speed; runs made before keep their exact numbers
-    nets = [make_value_network("sarl") for _ in range(2)]
-    nets[1].load_state_dict(nets[0].state_dict())
-    optimizers = [
-        torch.optim.SGD(net.parameters(), lr=0.01, momentum=0.9, fused=fused)
-        for net, fused in zip(nets, (False, True), strict=True)
-    ]
-    for step in range(5):
-        robot, humans, mask = _states(batch=32, humans=5, seed=step)
-        for net, optimizer in zip(nets, optimizers, strict=True):
-            loss = net(robot, humans, mask)[0].square().mean()
-            optimizer.zero_grad()
-            loss.backward()
-            optimizer.step()
-    assert torch.equal(flat_parameters(nets[0]), flat_parameters(nets[1]))
-
-
 def test_same_seed_twice_is_identical_and_another_seed_differs(tmp_path):
     a, b = train_tiny(TINY, tmp_path, "a"), train_tiny(TINY, tmp_path, "b")
     assert torch.equal(_weights(a), _weights(b))

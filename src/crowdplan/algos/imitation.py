@@ -185,7 +185,7 @@ def fit_values(
     device = next(net.parameters()).device
     robot, humans, mask = (torch.from_numpy(x).to(device) for x in demos.states)
     target = torch.from_numpy(demos.returns).to(device)
-    optimizer = torch.optim.SGD(net.parameters(), lr=lr, momentum=momentum, fused=True)
+    optimizer = torch.optim.SGD(net.parameters(), lr=lr, momentum=momentum)
     n = len(target)
     mean_loss = float("nan")
     for epoch in range(epochs):

@@ -167,9 +167,8 @@ class ValueRLAgent:
             torch.manual_seed(config.seed)
             self.net = make_value_network(self.params.network).to(device)
         self.target = copy.deepcopy(self.net).requires_grad_(False)
-        # fused: one kernel for every parameter, the same steps bit for bit (measured), faster
         self.optimizer = torch.optim.SGD(
-            self.net.parameters(), lr=self.params.lr, momentum=self.params.momentum, fused=True
+            self.net.parameters(), lr=self.params.lr, momentum=self.params.momentum
         )
         self.buffer = ReplayBuffer(self.params.buffer_size, world.humans, seed=config.seed + 1)
         self.rng = np.random.default_rng(config.seed + 2)
