@@ -40,6 +40,7 @@ from functools import partial  # noqa: E402
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from thread_timing import seconds_on_threads  # noqa: E402
 
 from crowdplan.config import WorldConfig  # noqa: E402
 from crowdplan.features import robot_centric  # noqa: E402
@@ -209,20 +210,14 @@ def print_threads_table(
         gamma = step_discount(0.9, config)
         for envs in envs_list:
             decide = partial(batched, net, config, gamma, *_observations(config, envs))
-            rounds = []
-            for _ in range(repeats):
-                row = []
-                for count in (1, threads):
-                    torch.set_num_threads(count)
-                    decide()  # warm the thread pool up
-                    start = time.perf_counter()
-                    for _ in range(CALLS_PER_TIMING):
-                        decide()
-                    row.append((time.perf_counter() - start) / (CALLS_PER_TIMING * envs))
-                rounds.append(row)
-            one, many = np.median(np.array(rounds), axis=0)
+
+            def calls(decide=decide) -> None:
+                for _ in range(CALLS_PER_TIMING):
+                    decide()
+
+            one, many = seconds_on_threads(calls, threads, repeats, warmup=decide)
+            one, many = one / (CALLS_PER_TIMING * envs), many / (CALLS_PER_TIMING * envs)
             print(f"| {n} | {envs} | {one * 1e3:.3f} | {many * 1e3:.3f} | {one / many:.2f}x |")
-    torch.set_num_threads(1)
 
 
 if __name__ == "__main__":

@@ -35,6 +35,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
+from thread_timing import seconds_on_threads  # noqa: E402
 
 from crowdplan.algos.registry import get_algorithm  # noqa: E402
 from crowdplan.features import robot_centric  # noqa: E402
@@ -145,18 +146,13 @@ def main() -> None:
 
 def print_threads_table(agent, threads: int, updates: int, repeats: int) -> None:
     """Wall-clock ms per cached update on one torch thread and on ``threads``."""
-    rows = []
-    for _ in range(repeats):
-        row = []
-        for count in (1, threads):
-            torch.set_num_threads(count)
-            cached_updates(agent, 20)  # warm the thread pool up
-            start = time.perf_counter()
-            cached_updates(agent, updates)
-            row.append((time.perf_counter() - start) / updates)
-        rows.append(row)
-    torch.set_num_threads(1)
-    one, many = np.median(np.array(rows), axis=0)
+    one, many = seconds_on_threads(
+        lambda: cached_updates(agent, updates),
+        threads,
+        repeats,
+        warmup=lambda: cached_updates(agent, 20),
+    )
+    one, many = one / updates, many / updates
     print()
     print(f"# the same update by wall clock, 1 and {threads} torch threads (median of {repeats})")
     print("| torch threads | ms per update | ratio |")

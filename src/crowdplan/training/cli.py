@@ -58,12 +58,12 @@ _FLAGS = (
 
 
 def _with_flags(config: TrainConfig, args: argparse.Namespace) -> TrainConfig:
-    """``config`` with the keys that the given flags set (those that may change on resume only,
-    for a resumed run), checked like a YAML file's."""
+    """``config`` with the keys that the given flags set, checked like a YAML file's (a resumed
+    run has refused the flags that may not change before this)."""
     data = config.to_dict()
     for flag in _FLAGS:
         value = getattr(args, flag.attribute)
-        if value is None or (args.resume and not flag.on_resume):
+        if value is None:
             continue
         if flag.applies_to and flag.key.split(".")[0] not in data:
             raise ValueError(f"{flag.applies_to}; this run trains {config.algo!r}")

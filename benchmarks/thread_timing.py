@@ -1,0 +1,37 @@
+"""Wall-clock timing of the same work on one torch thread and on several, shared by the
+benchmarks' ``--threads`` tables."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+
+def seconds_on_threads(
+    work: Callable[[], object],
+    threads: int,
+    repeats: int,
+    warmup: Callable[[], object] | None = None,
+) -> tuple[float, float]:
+    """Median wall-clock seconds of one call of ``work`` on one torch thread and on ``threads``.
+
+    The two settings alternate within each of ``repeats`` rounds, each timing preceded by one
+    call of ``warmup`` (default: ``work``) that wakes the thread pool up. The process is left on
+    one thread.
+    """
+    rounds = []
+    for _ in range(repeats):
+        row = []
+        for count in (1, threads):
+            torch.set_num_threads(count)
+            (warmup or work)()
+            start = time.perf_counter()
+            work()
+            row.append(time.perf_counter() - start)
+        rounds.append(row)
+    torch.set_num_threads(1)
+    one, many = np.median(np.array(rounds), axis=0)
+    return float(one), float(many)
