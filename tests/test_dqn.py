@@ -65,6 +65,18 @@ def test_same_seed_twice_is_identical_and_resume_continues_exactly(tmp_path):
     assert [e["seed"] for e in a.episodes] == [e["seed"] for e in resumed.episodes]
 
 
+def test_polyak_target_follows_the_online_network_by_tau(tmp_path):
+    data = {**TINY, "dqn": {**TINY["dqn"], "tau": 0.25}}
+    trainer = train_tiny(data, tmp_path, "polyak", episodes=2)
+    agent = trainer.agent
+    before = flat_parameters(agent.q_target)
+    batch = agent.buffer.sample(agent.params.batch_size)
+    agent._learn(batch)
+    after_online, after_target = flat_parameters(agent.q), flat_parameters(agent.q_target)
+    assert not torch.equal(before, after_target)
+    assert torch.allclose(after_target, 0.75 * before + 0.25 * after_online, atol=1e-6)
+
+
 def test_train_eval_render_from_the_command_line(tmp_path):
     data = {**TINY, "episodes": 4, "val_interval": 2, "test_episodes": 2}
     config = tmp_path / "tiny.yaml"
@@ -99,7 +111,8 @@ def test_preset_loads():
     [
         ({**TINY, "a2c": {}}, "section(s) ['a2c'] belong to another algorithm"),
         ({**TINY, "dqn": {"epsilon_end": 1.5}}, "dqn.epsilon_end must be >= 0.0 and <= 1.0"),
-        ({**TINY, "dqn": {"tau": 0.1}}, "unknown key(s) ['tau'] in dqn"),
+        ({**TINY, "dqn": {"polyak": 0.1}}, "unknown key(s) ['polyak'] in dqn"),
+        ({**TINY, "dqn": {"tau": 1.5}}, "dqn.tau must be >= 0.0 and <= 1.0"),
         ({**TINY, "dqn": {"return_min": 1.0, "return_max": 1.0}}, "dqn.return_min (1.0) must be"),
     ],
 )

@@ -5,7 +5,8 @@ Q network: encoder + MLP head (``q_hidden``) -> one Q-value per action. Target (
 a time-limit truncation bootstraps (its ``done`` is 0, as in the replay buffer of DSAC).
 Exploration: epsilon-greedy, epsilon falling linearly from ``epsilon_start`` to ``epsilon_end``
 over ``epsilon_episodes`` finished episodes. The target network is copied from the online one
-every ``target_update`` gradient steps. The greedy policy is the argmax of Q.
+every ``target_update`` gradient steps, or follows it by Polyak averaging (``tau``). The greedy
+policy is the argmax of Q.
 """
 
 from __future__ import annotations
@@ -41,7 +42,10 @@ class DQNConfig:
         gamma: discount per environment step.
         lr: Adam learning rate.
         batch_size: transitions per update.
-        target_update: gradient steps between copies of the online network into the target.
+        target_update: gradient steps between copies of the online network into the target
+            (when ``tau`` is 0).
+        tau: if above 0, the target instead follows the online network by Polyak averaging after
+            every update, ``target <- (1 - tau) target + tau online`` (DSAC's target rule).
         epsilon_start, epsilon_end: exploration rate at the first episode and after the schedule.
         epsilon_episodes: finished episodes over which epsilon falls linearly.
         updates_per_step: gradient updates per environment transition.
@@ -59,6 +63,7 @@ class DQNConfig:
     lr: float = spec(3e-4, low=0.0, low_open=True)
     batch_size: int = spec(128, low=1)
     target_update: int = spec(500, low=1)
+    tau: float = spec(0.0, low=0.0, high=1.0)
     epsilon_start: float = spec(1.0, low=0.0, high=1.0)
     epsilon_end: float = spec(0.05, low=0.0, high=1.0)
     epsilon_episodes: int = spec(2000, low=1)
@@ -181,7 +186,12 @@ class DQNAgent:
         grad_norm = nn.utils.clip_grad_norm_(self.q.parameters(), p.max_grad_norm)
         self.optimizer.step()
         self.n_updates += 1
-        if self.n_updates % p.target_update == 0:
+        if p.tau > 0.0:
+            with torch.no_grad():
+                torch._foreach_lerp_(
+                    list(self.q_target.parameters()), list(self.q.parameters()), p.tau
+                )
+        elif self.n_updates % p.target_update == 0:
             self.q_target.load_state_dict(self.q.state_dict())
         return {
             "q_loss": float(loss.detach()),
