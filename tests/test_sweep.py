@@ -206,6 +206,19 @@ def test_cli_refuses_bad_input_before_any_work(tmp_path, capsys):
 
 
 # ---------------------------------------------------------------------- running
+def test_trials_take_the_configs_thread_count_unless_told(tmp_path):
+    config = tmp_path / "two_threads.yaml"
+    config.write_text(
+        yaml.safe_dump({**TINY, "episodes": 1, "val_interval": 1, "torch_threads": 2})
+    )
+    for flag, threads in [([], 2), (["--threads-per-trial", "1"], 1)]:
+        out = tmp_path / f"sweep{threads}"
+        assert main(["sweep", "--config", str(config), "--out", str(out), *flag]) == 0
+        assert json.loads((out / "sweep.json").read_text())["threads_per_trial"] == threads
+        meta = json.loads((out / "runs" / "tiny-s0" / "meta.json").read_text())
+        assert meta["torch_threads"] == threads
+
+
 def test_sweep_runs_skips_finished_and_resumes_stopped_trials(tmp_path):
     trials = expand(BASE, parse_grid(["dsac.lr=1e-4,3e-4"], BASE), [0], 1)
     straight = run_sweep(tmp_path / "a", BASE, trials, 1, InlineBackend, report=lambda _: None)

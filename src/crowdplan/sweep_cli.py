@@ -52,8 +52,9 @@ def add_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--threads-per-trial",
         type=int,
-        default=1,
-        help="torch threads (and CPUs reserved) per trial, >= 1 (default: %(default)s)",
+        default=None,
+        help="torch threads (and CPUs reserved) per trial, >= 1 (default: the config's "
+        "torch_threads)",
     )
     p.set_defaults(func=cmd_sweep)
 
@@ -63,12 +64,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from crowdplan.backends.sweep import expand, format_summary, parse_grid, parse_seeds, run_sweep
     from crowdplan.training import load_config
 
-    if args.threads_per_trial < 1:
+    if args.threads_per_trial is not None and args.threads_per_trial < 1:
         raise ValueError(f"--threads-per-trial must be >= 1, got {args.threads_per_trial}")
     base = load_config(args.config).to_dict()
-    trials = expand(
-        base, parse_grid(args.grid, base), parse_seeds(args.seeds), args.threads_per_trial
-    )
+    threads = args.threads_per_trial or base["torch_threads"]
+    trials = expand(base, parse_grid(args.grid, base), parse_seeds(args.seeds), threads)
     if args.backend == "local" and args.address is not None:
         raise ValueError("--address applies to --backend ray only")
     if args.address is not None:  # an address that does not answer is refused before any work
@@ -81,7 +81,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
                 args.out,
                 base,
                 trials,
-                args.threads_per_trial,
+                threads,
                 lambda: make_backend(args.backend, args.workers, args.address),
                 report=lambda line: print(line, file=sys.stderr, flush=True),
             )
