@@ -40,7 +40,7 @@ from functools import partial  # noqa: E402
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from thread_timing import seconds_on_threads  # noqa: E402
+from thread_timing import ratio_text, seconds_on_threads  # noqa: E402
 
 from crowdplan.config import WorldConfig  # noqa: E402
 from crowdplan.features import robot_centric  # noqa: E402
@@ -217,7 +217,9 @@ def print_threads_table(
 
             one, many = seconds_on_threads(calls, threads, repeats, warmup=decide)
             one, many = one / (CALLS_PER_TIMING * envs), many / (CALLS_PER_TIMING * envs)
-            print(f"| {n} | {envs} | {one * 1e3:.3f} | {many * 1e3:.3f} | {one / many:.2f}x |")
+            print(
+                f"| {n} | {envs} | {one * 1e3:.3f} | {many * 1e3:.3f} | {ratio_text(one, many)} |"
+            )
 
 
 if __name__ == "__main__":

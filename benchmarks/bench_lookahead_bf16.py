@@ -26,6 +26,7 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
+from thread_timing import ratio_text  # noqa: E402
 
 from crowdplan.models import load_model_policy  # noqa: E402
 from crowdplan.sim.lookahead import candidate_values, one_step  # noqa: E402
@@ -87,7 +88,7 @@ def main() -> None:
     print("| precision | ms per decision | ratio |")
     print("|---|---|---|")
     print(f"| float32 | {fp32:.3f} | 1.00 |")
-    print(f"| bfloat16 (autocast) | {bf16:.3f} | {fp32 / bf16:.2f}x faster |")
+    print(f"| bfloat16 (autocast) | {bf16:.3f} | {ratio_text(fp32, bf16)} |")
     print()
     print(f"# greedy action, bfloat16 against float32, {decisions} decisions")
     print("| same action | mean float32 value given up | max |")

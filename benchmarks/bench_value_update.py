@@ -35,7 +35,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
-from thread_timing import seconds_on_threads  # noqa: E402
+from thread_timing import ratio_text, seconds_on_threads  # noqa: E402
 
 from crowdplan.algos.registry import get_algorithm  # noqa: E402
 from crowdplan.features import robot_centric  # noqa: E402
@@ -138,7 +138,7 @@ def main() -> None:
     print(f"| reference: target forward per batch | {reference * 1e3:.3f} | 1.00 |")
     print(
         f"| crowdplan: cached target values (full refresh {refresh_time:.2f} s "
-        f"per {UPDATES_PER_COPY} updates) | {cached * 1e3:.3f} | {reference / cached:.2f}x faster |"
+        f"per {UPDATES_PER_COPY} updates) | {cached * 1e3:.3f} | {ratio_text(reference, cached)} |"
     )
     if args.threads > 1:
         print_threads_table(agent, args.threads, args.updates, args.repeats)
@@ -158,7 +158,7 @@ def print_threads_table(agent, threads: int, updates: int, repeats: int) -> None
     print("| torch threads | ms per update | ratio |")
     print("|---|---|---|")
     print(f"| 1 | {one * 1e3:.3f} | 1.00 |")
-    print(f"| {threads} | {many * 1e3:.3f} | {one / many:.2f}x faster |")
+    print(f"| {threads} | {many * 1e3:.3f} | {ratio_text(one, many)} |")
 
 
 if __name__ == "__main__":

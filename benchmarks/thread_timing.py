@@ -1,5 +1,5 @@
 """Wall-clock timing of the same work on one torch thread and on several, shared by the
-benchmarks' ``--threads`` tables."""
+benchmarks' ``--threads`` tables, and the wording of their ratios."""
 
 from __future__ import annotations
 
@@ -35,3 +35,11 @@ def seconds_on_threads(
     torch.set_num_threads(1)
     one, many = np.median(np.array(rounds), axis=0)
     return float(one), float(many)
+
+
+def ratio_text(reference: float, ours: float) -> str:
+    """``reference`` against ``ours`` (both times): "1.29x faster" or, for a slowdown,
+    "1.25x slower"."""
+    if ours <= reference:
+        return f"{reference / ours:.2f}x faster"
+    return f"{ours / reference:.2f}x slower"
