@@ -90,6 +90,18 @@ def test_bench_value_update_quick():
     assert [row.split("|")[1].strip() for row in threads_rows] == ["1", "2"]
 
 
+def test_bench_two_cores_quick():
+    args = ["--network", "cadrl", "--updates", "3", "--rounds", "1"]
+    result = _run_bench("bench_two_cores.py", *args)
+    medians = result.stdout.split("# medians")[1].strip().splitlines()[3:]
+    assert [row.split("|")[1].strip() for row in medians] == [
+        "reference: one job, 1 thread",
+        "two jobs at once, 1 thread each",
+        "one job, 2 threads",
+    ]
+    assert all(re.search(r"\d\.\d\dx (faster|slower) \|$", row) for row in medians[1:])
+
+
 def test_bench_lookahead_bf16_quick():
     args = ["--model", "cadrl", "--envs", "2", "--cases", "2", "--steps", "2", "--repeats", "1"]
     result = _run_bench("bench_lookahead_bf16.py", *args)
