@@ -90,9 +90,11 @@ REFUSED = [
     (["eval", "--model", "{tmp}/empty-run"], "holds no model"),
     (["eval", "--model", "no-such-model"], "or a shipped model name ("),
     # --lookahead: a value-network model's option only
-    (["eval", "--lookahead", "oracle"], "use it with --model"),
+    (["eval", "--lookahead", "oracle"], "use with --model"),
     (["eval", "--model", "lsa-dsac", "--lookahead", "oracle"], "lsa-dsac is not one"),
     (["render", "--model", "lstm-a2c", "--lookahead", "oracle", "--out", "{tmp}/x.png"], "drop"),
+    (["eval", "--lookahead-precision", "bfloat16"], "use with --model"),
+    (["eval", "--model", "lsa-dsac", "--lookahead-precision", "bfloat16"], "drop --lookahead-pre"),
     # outputs: checked before the work, never replaced without --force
     (["eval", "--out", "{tmp}/file"], "is a file; give a folder"),
     (["eval", "--out", "{tmp}/file/sub"], "is a file, not a folder"),

@@ -116,6 +116,24 @@ def test_action_values_add_the_discounted_value_of_non_terminal_candidates():
     assert gamma == pytest.approx(0.9**0.25)
 
 
+def test_bfloat16_action_values_round_the_value_call_only():
+    config = WorldConfig(humans=3)
+    world = _busy_world(config)
+    cand = one_step(*world.observe(), config)
+    torch.manual_seed(0)
+    net = make_value_network("sarl")
+    gamma = step_discount(0.9, config)
+    q32 = action_values(cand, net, gamma).numpy()
+    q16 = action_values(cand, net, gamma, precision="bfloat16").numpy()
+    assert q16.dtype == q32.dtype and q16.shape == q32.shape
+    # terminal candidates score their reward alone, whatever the precision
+    np.testing.assert_array_equal(q16[cand.terminal], q32[cand.terminal])
+    # bfloat16 keeps 8 mantissa bits: values of size ~0.1 move by ~1e-3, not more
+    assert 0.0 < np.abs(q16 - q32).max() < 0.01
+    with pytest.raises(ValueError, match="precision must be one of"):
+        action_values(cand, net, gamma, precision="float16")
+
+
 def test_bench_lookahead_quick():
     script = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_lookahead.py"
     args = ["--quick", "--humans", "2", "--envs", "2", "--threads", "2"]

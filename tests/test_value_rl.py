@@ -273,6 +273,11 @@ def test_cli_train_eval_render(tmp_path, capsys):
     assert main([*argv, "--out", str(tmp_path / "oracle")]) == 0
     oracle = json.loads((tmp_path / "oracle" / "summary.json").read_text())
     assert oracle["meta"]["lookahead"] == "oracle"
+    assert "lookahead_precision" not in oracle["meta"]
+    argv = ["eval", "--model", str(run), "--episodes", "2", "--lookahead-precision", "bfloat16"]
+    assert main([*argv, "--out", str(tmp_path / "bf16")]) == 0
+    bf16 = json.loads((tmp_path / "bf16" / "summary.json").read_text())
+    assert bf16["meta"]["lookahead_precision"] == "bfloat16"
     png = tmp_path / "m.png"
     assert main(["render", "--model", str(run), "--case", "0", "--out", str(png)]) == 0
     assert png.stat().st_size > 0

@@ -50,6 +50,14 @@ def _add_policy_args(parser: argparse.ArgumentParser) -> None:
         "one-step lookahead, constant velocity or the simulator's true ones (CrowdNav's "
         "protocol); recorded in summary.json (default: the model's own)",
     )
+    parser.add_argument(
+        "--lookahead-precision",
+        choices=("float32", "bfloat16"),
+        default=None,
+        help="value-network models: run the lookahead's value network in float32 (default) or "
+        "bfloat16 (CPU autocast; about 2x faster where the CPU has bfloat16 instructions, and "
+        "some greedy actions change: docs/benchmarks.md); recorded in summary.json",
+    )
 
 
 def _add_output_args(parser: argparse.ArgumentParser, what: str) -> None:
@@ -80,7 +88,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.out:
         files = RESULT_FILES + (("records.npz",) if args.record else ())
         check_output_folder(args.out, files, args.force)
-    policy, base = load_policy(args.policy, args.model, args.shield, args.lookahead)
+    policy, base = load_policy(
+        args.policy, args.model, args.shield, args.lookahead, args.lookahead_precision
+    )
     config = world_from_args(args, policy, base)
 
     records: list = []
@@ -139,7 +149,9 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise ValueError(f"--case must be >= 0, got {args.case}")
     seed = evaluation.SPLITS[args.split].seed(args.case)
     check_output_file(args.out, args.force, RENDER_SUFFIXES)
-    policy, base = load_policy(args.policy, args.model, args.shield, args.lookahead)
+    policy, base = load_policy(
+        args.policy, args.model, args.shield, args.lookahead, args.lookahead_precision
+    )
     config = world_from_args(args, policy, base)
     (record,) = evaluation.run_episodes(policy, config, [seed], record_traces=True)
     title = f"{policy.name}, {args.split} case {args.case}: {record.outcome} at {record.time:.2f} s"

@@ -43,29 +43,45 @@ def load_policy(
     model: str | None,
     shield: float | None = None,
     lookahead: str | None = None,
+    lookahead_precision: str | None = None,
 ) -> tuple[Policy, WorldConfig]:
     """A policy plus the world config it expects (a trained model brings its own).
 
     ``shield``: a trained model's safety-shield horizon in seconds (0: off, None: the model's
     own; see :func:`crowdplan.models.load_model_policy`); built-in planners take none.
     ``lookahead``: the lookahead mode of a value-network model (None: the model's own).
+    ``lookahead_precision``: ``float32`` or ``bfloat16`` for that lookahead's value call
+    (None: float32).
     """
+    value_options = {
+        flag: value
+        for flag, value in (
+            ("--lookahead", lookahead),
+            ("--lookahead-precision", lookahead_precision),
+        )
+        if value is not None
+    }
     if model is not None:
         from crowdplan.models import load_model_policy
 
         loaded, world = load_model_policy(model, shield)
-        if lookahead is not None:
+        if value_options:
             from crowdplan.algos.value_rl import ValuePolicy
 
             if not isinstance(loaded, ValuePolicy):
+                flags = " and ".join(value_options)
                 raise ValueError(
-                    f"--lookahead applies to value-network models (cadrl, lstm-rl, sarl); "
-                    f"{model} is not one: drop --lookahead"
+                    f"{flags}: only value-network models (cadrl, lstm-rl, sarl) have a "
+                    f"lookahead; {model} is not one: drop {flags}"
                 )
-            loaded.set_lookahead(lookahead)
+            if lookahead is not None:
+                loaded.set_lookahead(lookahead)
+            if lookahead_precision is not None:
+                loaded.set_precision(lookahead_precision)
         return loaded, world
-    if lookahead is not None:
-        raise ValueError("--lookahead sets a value-network model's lookahead: use it with --model")
+    if value_options:
+        flags = " and ".join(value_options)
+        raise ValueError(f"{flags} set a value-network model's lookahead: use with --model")
     if shield:
         raise ValueError("--shield filters a trained model's action scores: use it with --model")
     name = policy or "orca"

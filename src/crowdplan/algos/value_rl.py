@@ -43,7 +43,13 @@ from crowdplan.models import load_weights, require_format
 from crowdplan.nets.value import VALUE_NETWORKS, ValueNetwork, make_value_network
 from crowdplan.policy import PolicyOutput
 from crowdplan.sim.actions import N_ACTIONS
-from crowdplan.sim.lookahead import LOOKAHEAD_MODES, action_values, one_step, step_discount
+from crowdplan.sim.lookahead import (
+    LOOKAHEAD_MODES,
+    PRECISIONS,
+    action_values,
+    one_step,
+    step_discount,
+)
 
 if TYPE_CHECKING:
     from crowdplan.sim.world import World
@@ -120,6 +126,7 @@ class ValuePolicy:
         self.gamma_step = gamma_step
         self.name = name
         self.metadata = {**(metadata or {}), "lookahead": lookahead}
+        self.precision = "float32"
         self.kinematics = world.kinematics
         self._sim: World | None = None
 
@@ -131,6 +138,17 @@ class ValuePolicy:
         self.lookahead = mode
         self.metadata["lookahead"] = mode
 
+    def set_precision(self, precision: str) -> None:
+        """Run the lookahead's value call in ``precision`` (``float32`` or ``bfloat16``, see
+        :func:`crowdplan.sim.lookahead.action_values`); recorded in the metadata when not
+        float32."""
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
+        self.precision = precision
+        self.metadata.pop("lookahead_precision", None)
+        if precision != "float32":
+            self.metadata["lookahead_precision"] = precision
+
     def bind_world(self, world: World) -> None:
         """Play in ``world`` from now on (its observations are the ones :meth:`act` gets)."""
         self._sim = world
@@ -141,7 +159,8 @@ class ValuePolicy:
         """The best action (E,) of the lookahead; ``sim`` is the world the observation is of."""
         config = self.world if sim is None else sim.config
         candidates = one_step(robot, humans, mask, config, self.lookahead, sim)
-        return action_values(candidates, self.net, self.gamma_step).argmax(dim=1).cpu().numpy()
+        values = action_values(candidates, self.net, self.gamma_step, self.precision)
+        return values.argmax(dim=1).cpu().numpy()
 
     @torch.no_grad()
     def act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> PolicyOutput:

@@ -4,6 +4,10 @@ The candidate next states, their rewards and features come from :mod:`crowdplan.
 (numpy only, shared with the deployment runtime); :func:`action_values` evaluates the value
 network on all of them in one torch call and scores each candidate ``r + gamma_step * V(s')``,
 without the bootstrap term where the candidate ends the episode (collision or goal).
+
+The value call runs in float32 or, on request, under bfloat16 autocast on the CPU: about twice
+as fast where the CPU has bfloat16 instructions, but its rounding moves the values by up to about
+0.006 and so changes some greedy actions (docs/benchmarks.md, "bfloat16 for the lookahead").
 """
 
 from __future__ import annotations
@@ -24,8 +28,11 @@ from crowdplan.sim.candidates import (
     step_discount,
 )
 
+PRECISIONS = ("float32", "bfloat16")
+
 __all__ = [
     "LOOKAHEAD_MODES",
+    "PRECISIONS",
     "Candidates",
     "Timing",
     "action_values",
@@ -37,10 +44,18 @@ __all__ = [
 
 
 @torch.no_grad()
-def action_values(candidates: Candidates, value_net: Any, gamma_step: float) -> torch.Tensor:
-    """(E, A) ``r + gamma_step * V(s')`` of every candidate; terminal candidates score ``r``."""
+def action_values(
+    candidates: Candidates, value_net: Any, gamma_step: float, precision: str = "float32"
+) -> torch.Tensor:
+    """(E, A) ``r + gamma_step * V(s')`` of every candidate; terminal candidates score ``r``.
+
+    ``precision``: ``float32``, or ``bfloat16`` for the value call under CPU autocast (the
+    candidates, rewards and the returned scores stay float32)."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
     device = next(value_net.parameters()).device
-    values, _ = value_net(
-        *(torch.from_numpy(np.ascontiguousarray(x)).to(device) for x in candidates.features)
-    )
-    return torch.from_numpy(candidate_values(candidates, values.cpu().numpy(), gamma_step))
+    features = (torch.from_numpy(np.ascontiguousarray(x)).to(device) for x in candidates.features)
+    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bfloat16"):
+        values, _ = value_net(*features)
+    values = values.float().cpu().numpy()
+    return torch.from_numpy(candidate_values(candidates, values, gamma_step))
