@@ -188,9 +188,8 @@ class DQNAgent:
         self.n_updates += 1
         if p.tau > 0.0:
             with torch.no_grad():
-                torch._foreach_lerp_(
-                    list(self.q_target.parameters()), list(self.q.parameters()), p.tau
-                )
+                for target, online in zip(self.q_target.parameters(), self.q.parameters()):
+                    target.lerp_(online, p.tau)
         elif self.n_updates % p.target_update == 0:
             self.q_target.load_state_dict(self.q.state_dict())
         return {
