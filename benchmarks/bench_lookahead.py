@@ -35,12 +35,11 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
 
 import argparse  # noqa: E402
 import math  # noqa: E402
-import time  # noqa: E402
 from functools import partial  # noqa: E402
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from thread_timing import ratio_text, seconds_on_threads  # noqa: E402
+from thread_timing import cpu_seconds, ratio_text, seconds_on_threads  # noqa: E402
 
 from crowdplan.config import WorldConfig  # noqa: E402
 from crowdplan.features import robot_centric  # noqa: E402
@@ -110,18 +109,10 @@ def reference(net, config, gamma, robot, humans, mask) -> np.ndarray:
     return values
 
 
-def _time(fn, repeats: int) -> float:
-    fn()  # warm-up
-    start = time.process_time()
-    for _ in range(repeats):
-        fn()
-    return (time.process_time() - start) / repeats
-
-
 def matmul_rate(size: int = 1024, repeats: int = 5) -> float:
     """FLOP/s of one float32 (size x size) @ (size x size) matmul on one thread."""
     a, b = torch.randn(size, size), torch.randn(size, size)
-    seconds = _time(lambda: a @ b, repeats)
+    seconds = cpu_seconds(lambda: a @ b, repeats)
     return 2 * size**3 / seconds
 
 
@@ -165,10 +156,10 @@ def main() -> None:
         gamma = step_discount(0.9, config)
         for envs in args.envs:
             obs = _observations(config, envs)
-            fast = _time(partial(batched, net, config, gamma, *obs), args.repeats) / envs
+            fast = cpu_seconds(partial(batched, net, config, gamma, *obs), args.repeats) / envs
             k = min(envs, args.reference_envs)
             sub = tuple(x[:k] for x in obs)
-            slow = _time(partial(reference, net, config, gamma, *sub), 1) / k
+            slow = cpu_seconds(partial(reference, net, config, gamma, *sub), 1) / k
             diff = np.abs(batched(net, config, gamma, *sub) - reference(net, config, gamma, *sub))
             print(
                 f"| {n} | {envs} | {fast * 1e3:.3f} | {slow * 1e3:.2f} | {slow / fast:.0f}x "

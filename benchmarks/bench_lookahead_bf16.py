@@ -25,11 +25,10 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from thread_timing import ratio_text, seconds_on_threads  # noqa: E402
+from thread_timing import cpu_seconds, ratio_text, seconds_on_threads  # noqa: E402
 
 from crowdplan.models import load_model_policy  # noqa: E402
 from crowdplan.sim.lookahead import PRECISIONS, action_values, one_step  # noqa: E402
@@ -43,14 +42,6 @@ def decision(policy, world: World, precision: str) -> np.ndarray:
     policy.set_precision(precision)
     robot, humans, mask = world.observe()
     return policy.greedy(robot, humans, mask.astype(bool), world)
-
-
-def cpu_seconds(work, repeats: int) -> float:
-    work()  # warm-up
-    start = time.process_time()
-    for _ in range(repeats):
-        work()
-    return (time.process_time() - start) / repeats
 
 
 def main() -> None:

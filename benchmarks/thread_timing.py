@@ -1,5 +1,5 @@
-"""Wall-clock timing of the same work on one torch thread and on several, shared by the
-benchmarks' ``--threads`` tables, and the wording of their ratios."""
+"""Timing helpers shared by the benchmarks: CPU time of one call, wall-clock time of the same
+work on one torch thread and on several (the ``--threads`` tables), and the wording of ratios."""
 
 from __future__ import annotations
 
@@ -8,6 +8,16 @@ from collections.abc import Callable
 
 import numpy as np
 import torch
+
+
+def cpu_seconds(work: Callable[[], object], repeats: int) -> float:
+    """This process's CPU seconds per call of ``work``, over ``repeats`` calls after one warm-up
+    call (CPU time is steadier than wall-clock time when other work shares the machine)."""
+    work()
+    start = time.process_time()
+    for _ in range(repeats):
+        work()
+    return (time.process_time() - start) / repeats
 
 
 def seconds_on_threads(

@@ -99,13 +99,20 @@ def test_constant_velocity_ignores_the_world_and_oracle_needs_one():
         check_mode("psychic")
 
 
-def test_action_values_add_the_discounted_value_of_non_terminal_candidates():
+def _sarl_candidates():
+    """The candidates of a busy 3-human world, a fresh SARL network and the step discount."""
     config = WorldConfig(humans=3)
     world = _busy_world(config)
-    cand = one_step(*world.observe(), config)
     torch.manual_seed(0)
-    net = make_value_network("sarl")
-    gamma = step_discount(0.9, config)
+    return (
+        one_step(*world.observe(), config),
+        make_value_network("sarl"),
+        step_discount(0.9, config),
+    )
+
+
+def test_action_values_add_the_discounted_value_of_non_terminal_candidates():
+    cand, net, gamma = _sarl_candidates()
     q = action_values(cand, net, gamma).numpy()
     with torch.no_grad():
         v, _ = net(*(torch.from_numpy(x) for x in cand.features))
@@ -117,12 +124,7 @@ def test_action_values_add_the_discounted_value_of_non_terminal_candidates():
 
 
 def test_bfloat16_action_values_round_the_value_call_only():
-    config = WorldConfig(humans=3)
-    world = _busy_world(config)
-    cand = one_step(*world.observe(), config)
-    torch.manual_seed(0)
-    net = make_value_network("sarl")
-    gamma = step_discount(0.9, config)
+    cand, net, gamma = _sarl_candidates()
     q32 = action_values(cand, net, gamma).numpy()
     q16 = action_values(cand, net, gamma, precision="bfloat16").numpy()
     assert q16.dtype == q32.dtype and q16.shape == q32.shape

@@ -188,7 +188,8 @@ class DQNAgent:
         self.n_updates += 1
         if p.tau > 0.0:
             with torch.no_grad():
-                for target, online in zip(self.q_target.parameters(), self.q.parameters()):
+                pairs = zip(self.q_target.parameters(), self.q.parameters(), strict=True)
+                for target, online in pairs:
                     target.lerp_(online, p.tau)
         elif self.n_updates % p.target_update == 0:
             self.q_target.load_state_dict(self.q.state_dict())
