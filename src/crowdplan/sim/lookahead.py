@@ -49,8 +49,8 @@ def action_values(
 ) -> torch.Tensor:
     """(E, A) ``r + gamma_step * V(s')`` of every candidate; terminal candidates score ``r``.
 
-    ``precision``: ``float32``, or ``bfloat16`` for the value call under CPU autocast (the
-    candidates, rewards and the returned scores stay float32)."""
+    ``precision``: ``float32``, or ``bfloat16`` for the value call alone under autocast (on
+    the network's device); the candidates, rewards and scores are computed as in float32."""
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
     device = next(value_net.parameters()).device
