@@ -67,6 +67,13 @@ def test_shipped_model_loads_by_name():
     assert world.humans == 5 and policy.metadata["encoder"] == "lsa"
 
 
+def test_shipped_rg_dqn_loads_by_name_and_reaches_goals():
+    policy, world = load_model_policy("rg-dqn")
+    assert policy.metadata["algo"] == "dqn" and world.humans == 5
+    records = run_episodes(policy, world, validation_seeds(20))
+    assert sum(r.outcome == "goal" for r in records) >= 17
+
+
 def test_shipped_unicycle_model_reaches_goals_within_its_turn_limit():
     policy, world = load_model_policy("lsa-dsac-unicycle")
     assert world.kinematics == "unicycle" and world.humans == 5
