@@ -45,8 +45,8 @@ from crowdplan.policy import PolicyOutput
 from crowdplan.sim.actions import N_ACTIONS
 from crowdplan.sim.lookahead import (
     LOOKAHEAD_MODES,
-    PRECISIONS,
     action_values,
+    check_precision,
     one_step,
     step_discount,
 )
@@ -142,8 +142,7 @@ class ValuePolicy:
         """Run the lookahead's value call in ``precision`` (``float32`` or ``bfloat16``, see
         :func:`crowdplan.sim.lookahead.action_values`); recorded in the metadata when not
         float32."""
-        if precision not in PRECISIONS:
-            raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
+        check_precision(precision)
         self.precision = precision
         self.metadata.pop("lookahead_precision", None)
         if precision != "float32":

@@ -34,6 +34,7 @@ __all__ = [
     "LOOKAHEAD_MODES",
     "PRECISIONS",
     "Candidates",
+    "check_precision",
     "Timing",
     "action_values",
     "check_mode",
@@ -41,6 +42,12 @@ __all__ = [
     "one_step",
     "step_discount",
 ]
+
+
+def check_precision(precision: str) -> None:
+    """Refuse a precision of the value call other than :data:`PRECISIONS`."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
 
 
 @torch.no_grad()
@@ -51,8 +58,7 @@ def action_values(
 
     ``precision``: ``float32``, or ``bfloat16`` for the value call alone under autocast (on
     the network's device); the candidates, rewards and scores are computed as in float32."""
-    if precision not in PRECISIONS:
-        raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
+    check_precision(precision)
     device = next(value_net.parameters()).device
     features = (torch.from_numpy(np.ascontiguousarray(x)).to(device) for x in candidates.features)
     with torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bfloat16"):
