@@ -76,6 +76,15 @@ def test_validation_runs_with_val_humans(tmp_path, monkeypatch):
         TINY, tmp_path, "a", episodes=2, val_interval=1, val_episodes=2, val_humans=0
     )
     assert humans and set(humans) == {0} and trainer.config.world.humans == 3
+    # the test cases are played in the world the best model was selected in
+    trainer.config = dataclasses.replace(trainer.config, test_episodes=2)
+    trainer.test()
+    assert humans[-1] == 0
+    meta = json.loads((trainer.run_dir / "test" / "summary.json").read_text())["meta"]
+    assert meta["world"]["humans"] == 0 and meta["world_differs_from_training"]["humans"] == {
+        "trained": 3,
+        "evaluated": 0,
+    }
 
 
 def test_demonstrations_and_behaviour_cloning_warm_start_resume_exactly(tmp_path):

@@ -405,8 +405,11 @@ class Trainer:
             self._next_ckpt += cfg.checkpoint_interval
 
     def test(self) -> dict:
-        """Evaluate the best-validation model on the test cases; writes run_dir/test/."""
-        policy, world = load_model_policy(str(self.run_dir / "best_model.pt"))
+        """Evaluate the best-validation model on the test cases of the validation world (the
+        training world, or ``val_humans`` humans when that is set: the world the model was
+        selected in); writes run_dir/test/."""
+        policy, _ = load_model_policy(str(self.run_dir / "best_model.pt"))
+        world = self.config.validation_world()
         seeds = evaluation.test_seeds(self.config.test_episodes)
         records = evaluation.run_episodes(policy, world, seeds)
         summary = evaluation.summarize(records)
