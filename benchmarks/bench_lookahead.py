@@ -14,14 +14,19 @@ the reward is computed in a Python loop over the humans, the joint state is rota
 network is called on that one state (batch 1). Both sides use the same SARL weights, the same
 reward definitions and the same features; their action values are checked to agree (printed).
 
-A second table puts the batched decision beside its arithmetic floor: the SARL forward pass's
+A second table times the same decision with the value network called once on every candidate
+against the default, chunks of about ``PAIRS_PER_CALL`` (state, human) pairs
+(:data:`crowdplan.sim.lookahead.PAIRS_PER_CALL`), and says whether both give bitwise the same
+values.
+
+A third table puts the batched decision beside its arithmetic floor: the SARL forward pass's
 floating-point operations per decision (counted by ``torch.utils.flop_counter``) divided by this
 core's dense float32 matmul rate, measured in the same run on one large matmul.
 
 Times are this process's CPU time (``time.process_time``), steadier than wall-clock time when
 other work shares the machine; one torch thread. Output: stdout only.
 
-``--threads N`` (N > 1) adds a third table: the batched decision by wall clock on one torch
+``--threads N`` (N > 1) adds a fourth table: the batched decision by wall clock on one torch
 thread and on N (the CPU time of N threads adds up), alternating within each repeat, median of
 the repeats. Only meaningful on an otherwise idle machine with N free cores.
 """
@@ -44,6 +49,7 @@ from thread_timing import cpu_seconds, ratio_text, seconds_on_threads  # noqa: E
 from crowdplan.config import WorldConfig  # noqa: E402
 from crowdplan.features import robot_centric  # noqa: E402
 from crowdplan.nets.value import make_value_network  # noqa: E402
+from crowdplan.sim import lookahead  # noqa: E402
 from crowdplan.sim.actions import N_ACTIONS, action_table  # noqa: E402
 from crowdplan.sim.lookahead import action_values, one_step, step_discount  # noqa: E402
 from crowdplan.sim.world import (  # noqa: E402
@@ -166,6 +172,7 @@ def main() -> None:
                 f"| {diff.max():.1e} |"
             )
             floors.append((n, envs, fast, forward_flops(net, config, gamma, *obs) / envs))
+    print_chunking_table(net, args.humans, args.envs, args.repeats)
     rate = matmul_rate(256 if args.quick else 1024)
     print()
     print(f"arithmetic floor at this core's float32 matmul rate ({rate / 1e9:.1f} GFLOP/s):")
@@ -180,6 +187,36 @@ def main() -> None:
         )
     if args.threads > 1:
         print_threads_table(net, args.humans, args.envs, args.threads, args.repeats)
+
+
+def print_chunking_table(net, humans: list[int], envs_list: list[int], repeats: int) -> None:
+    """CPU ms per batched decision: one value call on every candidate against chunked calls."""
+    chunk = lookahead.PAIRS_PER_CALL
+    print()
+    print(
+        f"one value call on every candidate against chunks of about {chunk} (state, human) pairs:"
+    )
+    print()
+    print("| N | E | one call ms/decision | chunked ms/decision | ratio | same values |")
+    print("|---|---|---|---|---|---|")
+    for n in humans:
+        config = WorldConfig(humans=n, action_frame="world")
+        gamma = step_discount(0.9, config)
+        for envs in envs_list:
+            decide = partial(batched, net, config, gamma, *_observations(config, envs))
+            times, values = {}, {}
+            for pairs in (2**62, chunk, 2**62, chunk):  # alternate: a slow spell hits both
+                lookahead.PAIRS_PER_CALL = pairs
+                seconds = cpu_seconds(decide, repeats) / envs
+                times[pairs] = min(times.get(pairs, seconds), seconds)
+                values[pairs] = decide()
+            lookahead.PAIRS_PER_CALL = chunk
+            one, chunked = times[2**62], times[chunk]
+            same = np.array_equal(values[2**62], values[chunk])
+            print(
+                f"| {n} | {envs} | {one * 1e3:.3f} | {chunked * 1e3:.3f} "
+                f"| {ratio_text(one, chunked)} | {'bitwise' if same else 'no'} |"
+            )
 
 
 CALLS_PER_TIMING = 5

@@ -30,6 +30,15 @@ from crowdplan.sim.candidates import (
 
 PRECISIONS = ("float32", "bfloat16")
 
+# The value network sees the candidates in chunks of about this many (state, human) pairs: a
+# 64-environment decision has 81 x 64 x N of them, and in one call every layer's activations
+# (tens of MB in float32) leave the cache and are paged in afresh by each call. Chunks of a few
+# thousand pairs run faster (docs/benchmarks.md). A chunk starts at a multiple of
+# STATES_ALIGNED states, so that each row keeps its place in the matmul kernels' row blocks and
+# gets the same value as in one call (on one thread; measured, not promised by the libraries).
+PAIRS_PER_CALL = 4096
+STATES_ALIGNED = 64
+
 __all__ = [
     "LOOKAHEAD_MODES",
     "PRECISIONS",
@@ -60,8 +69,11 @@ def action_values(
     the network's device); the candidates, rewards and scores are computed as in float32."""
     check_precision(precision)
     device = next(value_net.parameters()).device
-    features = (torch.from_numpy(np.ascontiguousarray(x)).to(device) for x in candidates.features)
+    features = [torch.from_numpy(np.ascontiguousarray(x)).to(device) for x in candidates.features]
+    per_chunk = PAIRS_PER_CALL // max(features[1].shape[1], 1)
+    per_chunk = max(STATES_ALIGNED, per_chunk - per_chunk % STATES_ALIGNED)
+    chunks = zip(*(x.split(per_chunk) for x in features), strict=True)
     with torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bfloat16"):
-        values, _ = value_net(*features)
+        values = torch.cat([value_net(*chunk)[0] for chunk in chunks])
     values = values.float().cpu().numpy()
     return torch.from_numpy(candidate_values(candidates, values, gamma_step))
