@@ -189,6 +189,16 @@ def main() -> None:
         print_threads_table(net, args.humans, args.envs, args.threads, args.repeats)
 
 
+def _decisions(net, humans: list[int], envs_list: list[int]):
+    """``(N, E, decide)`` for every crowd size and environment count: ``decide()`` runs one
+    batched decision of E environments with N humans, a few steps into their episodes."""
+    for n in humans:
+        config = WorldConfig(humans=n, action_frame="world")
+        gamma = step_discount(0.9, config)
+        for envs in envs_list:
+            yield n, envs, partial(batched, net, config, gamma, *_observations(config, envs))
+
+
 def print_chunking_table(net, humans: list[int], envs_list: list[int], repeats: int) -> None:
     """CPU ms per batched decision: one value call on every candidate against chunked calls."""
     chunk = lookahead.PAIRS_PER_CALL
@@ -199,24 +209,20 @@ def print_chunking_table(net, humans: list[int], envs_list: list[int], repeats: 
     print()
     print("| N | E | one call ms/decision | chunked ms/decision | ratio | same values |")
     print("|---|---|---|---|---|---|")
-    for n in humans:
-        config = WorldConfig(humans=n, action_frame="world")
-        gamma = step_discount(0.9, config)
-        for envs in envs_list:
-            decide = partial(batched, net, config, gamma, *_observations(config, envs))
-            times, values = {}, {}
-            for pairs in (2**62, chunk, 2**62, chunk):  # alternate: a slow spell hits both
-                lookahead.PAIRS_PER_CALL = pairs
-                seconds = cpu_seconds(decide, repeats) / envs
-                times[pairs] = min(times.get(pairs, seconds), seconds)
-                values[pairs] = decide()
-            lookahead.PAIRS_PER_CALL = chunk
-            one, chunked = times[2**62], times[chunk]
-            same = np.array_equal(values[2**62], values[chunk])
-            print(
-                f"| {n} | {envs} | {one * 1e3:.3f} | {chunked * 1e3:.3f} "
-                f"| {ratio_text(one, chunked)} | {'bitwise' if same else 'no'} |"
-            )
+    for n, envs, decide in _decisions(net, humans, envs_list):
+        times, values = {}, {}
+        for pairs in (2**62, chunk, 2**62, chunk):  # alternate: a slow spell hits both
+            lookahead.PAIRS_PER_CALL = pairs
+            seconds = cpu_seconds(decide, repeats) / envs
+            times[pairs] = min(times.get(pairs, seconds), seconds)
+            values[pairs] = decide()
+        lookahead.PAIRS_PER_CALL = chunk
+        one, chunked = times[2**62], times[chunk]
+        same = np.array_equal(values[2**62], values[chunk])
+        print(
+            f"| {n} | {envs} | {one * 1e3:.3f} | {chunked * 1e3:.3f} "
+            f"| {ratio_text(one, chunked)} | {'bitwise' if same else 'no'} |"
+        )
 
 
 CALLS_PER_TIMING = 5
@@ -233,21 +239,15 @@ def print_threads_table(
     print()
     print(f"| N | E | 1 thread ms/decision | {threads} threads ms/decision | ratio |")
     print("|---|---|---|---|---|")
-    for n in humans:
-        config = WorldConfig(humans=n, action_frame="world")
-        gamma = step_discount(0.9, config)
-        for envs in envs_list:
-            decide = partial(batched, net, config, gamma, *_observations(config, envs))
+    for n, envs, decide in _decisions(net, humans, envs_list):
 
-            def calls(decide=decide) -> None:
-                for _ in range(CALLS_PER_TIMING):
-                    decide()
+        def calls(decide=decide) -> None:
+            for _ in range(CALLS_PER_TIMING):
+                decide()
 
-            one, many = seconds_on_threads(calls, threads, repeats, warmup=decide)
-            one, many = one / (CALLS_PER_TIMING * envs), many / (CALLS_PER_TIMING * envs)
-            print(
-                f"| {n} | {envs} | {one * 1e3:.3f} | {many * 1e3:.3f} | {ratio_text(one, many)} |"
-            )
+        one, many = seconds_on_threads(calls, threads, repeats, warmup=decide)
+        one, many = one / (CALLS_PER_TIMING * envs), many / (CALLS_PER_TIMING * envs)
+        print(f"| {n} | {envs} | {one * 1e3:.3f} | {many * 1e3:.3f} | {ratio_text(one, many)} |")
 
 
 if __name__ == "__main__":
