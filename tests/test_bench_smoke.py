@@ -104,10 +104,10 @@ def test_bench_two_cores_quick():
 
 def test_bench_lookahead_bf16_quick():
     args = ["--model", "cadrl", "--envs", "2", "--cases", "2", "--steps", "2", "--repeats", "1"]
-    result = _run_bench("bench_lookahead_bf16.py", *args, "--threads", "2")
+    result = _run_bench("bench_lookahead_bf16.py", *args, "--threads", "2", "--compile")
     assert "| bfloat16 (autocast) |" in result.stdout
-    assert re.search(
-        r"^\| bfloat16 \| [\d.]+ \| [\d.]+ \| [\d.]+x (faster|slower) \|$", result.stdout, re.M
-    )
-    agreement = result.stdout.strip().splitlines()[-1].split("|")[1]
+    assert re.search(r"^\| float32, compiled \| 1\.000 \|", result.stdout, re.M)  # same actions
+    timed = r"[\d.]+ \| [\d.]+ \| [\d.]+x (faster|slower) \|$"
+    assert re.search(r"^\| bfloat16 \(autocast\), compiled \| " + timed, result.stdout, re.M)
+    agreement = result.stdout.strip().splitlines()[-1].split("|")[2]
     assert 0.0 <= float(agreement) <= 1.0

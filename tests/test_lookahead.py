@@ -147,6 +147,30 @@ def test_bfloat16_action_values_round_the_value_call_only():
         action_values(cand, net, gamma, precision="float16")
 
 
+def test_compiled_value_network_gives_the_eager_values_at_any_batch_and_crowd_size():
+    from crowdplan.sim.lookahead import compiled_value_network
+
+    cand, net, gamma = _sarl_candidates()
+    compiled = compiled_value_network(net)
+    robot, humans, mask = cand.features
+    for features in (cand.features, (robot[:7], humans[:7, :2], mask[:7, :2])):
+        with torch.no_grad():
+            eager, _ = net(*(torch.from_numpy(x) for x in features))
+            fused, _ = compiled(*(torch.from_numpy(x) for x in features))
+        torch.testing.assert_close(fused, eager, rtol=1e-5, atol=1e-6)  # float32 rounding only
+    torch.testing.assert_close(
+        action_values(cand, compiled, gamma), action_values(cand, net, gamma), rtol=1e-5, atol=1e-6
+    )
+
+
+def test_compiling_without_a_cpp_compiler_says_what_to_install(monkeypatch):
+    from crowdplan.sim import lookahead
+
+    monkeypatch.setattr(lookahead.shutil, "which", lambda name: None)
+    with pytest.raises(RuntimeError, match="needs a C\\+\\+ compiler.*install one"):
+        lookahead.compiled_value_network(make_value_network("sarl"))
+
+
 def test_bench_lookahead_quick():
     script = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_lookahead.py"
     args = ["--quick", "--humans", "2", "--envs", "2", "--threads", "2"]

@@ -278,6 +278,13 @@ def test_cli_train_eval_render(tmp_path, capsys):
     assert main([*argv, "--out", str(tmp_path / "bf16")]) == 0
     bf16 = json.loads((tmp_path / "bf16" / "summary.json").read_text())
     assert bf16["meta"]["lookahead_precision"] == "bfloat16"
+    assert "lookahead_compiled" not in bf16["meta"]
+    argv = ["eval", "--model", str(run), "--episodes", "2", "--lookahead-compile"]
+    assert main([*argv, "--out", str(tmp_path / "compiled")]) == 0
+    compiled = json.loads((tmp_path / "compiled" / "summary.json").read_text())
+    assert compiled["meta"]["lookahead_compiled"] is True
+    eager = json.loads((out / "summary.json").read_text())
+    assert compiled["success_rate"] == eager["success_rate"]
     png = tmp_path / "m.png"
     assert main(["render", "--model", str(run), "--case", "0", "--out", str(png)]) == 0
     assert png.stat().st_size > 0

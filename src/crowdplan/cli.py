@@ -58,6 +58,13 @@ def _add_policy_args(parser: argparse.ArgumentParser) -> None:
         "bfloat16 (CPU autocast; about 2x faster where the CPU has bfloat16 instructions, and "
         "some greedy actions change: docs/benchmarks.md); recorded in summary.json",
     )
+    parser.add_argument(
+        "--lookahead-compile",
+        action="store_true",
+        help="value-network models: run the lookahead's value network through torch.compile "
+        "(needs a C++ compiler; the first decision compiles for seconds, then decisions are "
+        "faster: docs/benchmarks.md); recorded in summary.json",
+    )
 
 
 def _add_output_args(parser: argparse.ArgumentParser, what: str) -> None:
@@ -89,7 +96,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
         files = RESULT_FILES + (("records.npz",) if args.record else ())
         check_output_folder(args.out, files, args.force)
     policy, base = load_policy(
-        args.policy, args.model, args.shield, args.lookahead, args.lookahead_precision
+        args.policy,
+        args.model,
+        args.shield,
+        args.lookahead,
+        args.lookahead_precision,
+        args.lookahead_compile,
     )
     config = world_from_args(args, policy, base)
 
@@ -150,7 +162,12 @@ def cmd_render(args: argparse.Namespace) -> int:
     seed = evaluation.SPLITS[args.split].seed(args.case)
     check_output_file(args.out, args.force, RENDER_SUFFIXES)
     policy, base = load_policy(
-        args.policy, args.model, args.shield, args.lookahead, args.lookahead_precision
+        args.policy,
+        args.model,
+        args.shield,
+        args.lookahead,
+        args.lookahead_precision,
+        args.lookahead_compile,
     )
     config = world_from_args(args, policy, base)
     (record,) = evaluation.run_episodes(policy, config, [seed], record_traces=True)

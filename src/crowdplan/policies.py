@@ -44,6 +44,7 @@ def load_policy(
     shield: float | None = None,
     lookahead: str | None = None,
     lookahead_precision: str | None = None,
+    lookahead_compile: bool = False,
 ) -> tuple[Policy, WorldConfig]:
     """A policy plus the world config it expects (a trained model brings its own).
 
@@ -51,13 +52,14 @@ def load_policy(
     own; see :func:`crowdplan.models.load_model_policy`); built-in planners take none.
     ``lookahead``: the lookahead mode of a value-network model (None: the model's own).
     ``lookahead_precision``: ``float32`` or ``bfloat16`` for that lookahead's value call
-    (None: float32).
+    (None: float32). ``lookahead_compile``: run that value call through ``torch.compile``.
     """
     value_options = {
         flag: value
         for flag, value in (
             ("--lookahead", lookahead),
             ("--lookahead-precision", lookahead_precision),
+            ("--lookahead-compile", True if lookahead_compile else None),
         )
         if value is not None
     }
@@ -78,6 +80,8 @@ def load_policy(
                 loaded.set_lookahead(lookahead)
             if lookahead_precision is not None:
                 loaded.set_precision(lookahead_precision)
+            if lookahead_compile:
+                loaded.set_compiled(True)
         return loaded, world
     if value_options:
         flags = " and ".join(value_options)

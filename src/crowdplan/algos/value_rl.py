@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 import torch.nn.functional as F
+from torch import nn
 
 from crowdplan.algos.base import Observation, Transitions, observation_features
 from crowdplan.algos.buffer import ReplayBuffer
@@ -45,8 +46,10 @@ from crowdplan.policy import PolicyOutput
 from crowdplan.sim.actions import N_ACTIONS
 from crowdplan.sim.lookahead import (
     LOOKAHEAD_MODES,
+    Candidates,
     action_values,
     check_precision,
+    compiled_value_network,
     one_step,
     step_discount,
 )
@@ -127,6 +130,8 @@ class ValuePolicy:
         self.name = name
         self.metadata = {**(metadata or {}), "lookahead": lookahead}
         self.precision = "float32"
+        self.compiled = False
+        self._compiled_net: nn.Module | None = None  # made by the first set_compiled(True)
         self.kinematics = world.kinematics
         self._sim: World | None = None
 
@@ -148,6 +153,28 @@ class ValuePolicy:
         if precision != "float32":
             self.metadata["lookahead_precision"] = precision
 
+    def set_compiled(self, compiled: bool) -> None:
+        """Run the lookahead's value calls through ``torch.compile`` (``compiled``) or eagerly;
+        recorded in the metadata when compiled (see
+        :func:`crowdplan.sim.lookahead.compiled_value_network`)."""
+        if compiled and self._compiled_net is None:
+            self._compiled_net = compiled_value_network(self.net)
+        self.compiled = compiled
+        self.metadata.pop("lookahead_compiled", None)
+        if compiled:
+            self.metadata["lookahead_compiled"] = True
+
+    def __getstate__(self) -> dict[str, Any]:
+        # a compiled module does not pickle (sharded evaluation sends the policy to workers):
+        # each copy compiles its own
+        state = self.__dict__.copy()
+        state["_compiled_net"] = None
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self.set_compiled(self.compiled)
+
     def bind_world(self, world: World) -> None:
         """Play in ``world`` from now on (its observations are the ones :meth:`act` gets)."""
         self._sim = world
@@ -158,8 +185,13 @@ class ValuePolicy:
         """The best action (E,) of the lookahead; ``sim`` is the world the observation is of."""
         config = self.world if sim is None else sim.config
         candidates = one_step(robot, humans, mask, config, self.lookahead, sim)
-        values = action_values(candidates, self.net, self.gamma_step, self.precision)
-        return values.argmax(dim=1).cpu().numpy()
+        return self.candidate_values(candidates).argmax(dim=1).cpu().numpy()
+
+    def candidate_values(self, candidates: Candidates) -> torch.Tensor:
+        """(E, A) lookahead scores of ``candidates`` in this policy's precision, through the
+        compiled network when :meth:`set_compiled` is on."""
+        net = self._compiled_net if self.compiled else self.net
+        return action_values(candidates, net, self.gamma_step, self.precision)
 
     @torch.no_grad()
     def act(self, robot: np.ndarray, humans: np.ndarray, mask: np.ndarray) -> PolicyOutput:

@@ -8,14 +8,19 @@ without the bootstrap term where the candidate ends the episode (collision or go
 The value call runs in float32 or, on request, under bfloat16 autocast on the CPU: about twice
 as fast where the CPU has bfloat16 instructions, but its rounding moves the values by up to about
 0.006 and so changes some greedy actions (docs/benchmarks.md, "bfloat16 for the lookahead").
+Either precision can run through a network compiled by :func:`compiled_value_network`
+(``torch.compile``: the element-wise layers fused into C++ kernels), which changes the values
+only by float32 rounding.
 """
 
 from __future__ import annotations
 
+import shutil
 from typing import Any
 
 import numpy as np
 import torch
+from torch import nn
 
 from crowdplan.sim.candidates import (
     LOOKAHEAD_MODES,
@@ -46,6 +51,7 @@ __all__ = [
     "check_precision",
     "Timing",
     "action_values",
+    "compiled_value_network",
     "check_mode",
     "next_humans",
     "one_step",
@@ -57,6 +63,21 @@ def check_precision(precision: str) -> None:
     """Refuse a precision of the value call other than :data:`PRECISIONS`."""
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {list(PRECISIONS)}, got {precision!r}")
+
+
+def compiled_value_network(net: nn.Module) -> nn.Module:
+    """``net`` compiled for the lookahead's value calls: it shares ``net``'s parameters, and
+    any batch size and crowd size runs without recompiling (``dynamic=True``); the first call
+    compiles (seconds). torch's CPU backend builds C++, so a C++ compiler must be installed."""
+    if shutil.which("g++") is None and shutil.which("clang++") is None:
+        raise RuntimeError(
+            "compiling the value network needs a C++ compiler (torch.compile builds C++ kernels "
+            "on the CPU) and none was found: install one (e.g. apt install g++) or run "
+            "without compiling"
+        )
+    # dynamic_threads: the fused kernels follow torch.set_num_threads at run time, not the count
+    # at compile time
+    return torch.compile(net, dynamic=True, options={"cpp.dynamic_threads": True})
 
 
 @torch.no_grad()
