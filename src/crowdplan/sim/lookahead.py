@@ -8,9 +8,9 @@ without the bootstrap term where the candidate ends the episode (collision or go
 The value call runs in float32 or, on request, under bfloat16 autocast on the CPU: about twice
 as fast where the CPU has bfloat16 instructions, but its rounding moves the values by up to about
 0.006 and so changes some greedy actions (docs/benchmarks.md, "bfloat16 and torch.compile for
-the lookahead"). Either precision can run through a network compiled by :func:`compiled_value_network`
-(``torch.compile``: the element-wise layers fused into C++ kernels), which changes the values
-only by float32 rounding.
+the lookahead"). Either precision can run through a network compiled by
+:func:`compiled_value_network` (``torch.compile``: the element-wise layers fused into C++
+kernels), which changes the values only by float32 rounding.
 """
 
 from __future__ import annotations
