@@ -10,11 +10,16 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from crowdplan import __version__
 from crowdplan.command import run_command
 from crowdplan.train_args import add_train_args
 from crowdplan.world_args import add_world_args, world_from_args
+
+if TYPE_CHECKING:
+    from crowdplan.config import WorldConfig
+    from crowdplan.policy import Policy
 
 RESULT_FILES = ("summary.json", "episodes.jsonl")
 SPLIT_HELP = "test: cases 0..499 = seeds 1000..1499; val: cases 0..99 = seeds 0..99"
@@ -67,6 +72,20 @@ def _add_policy_args(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _policy_from_args(args: argparse.Namespace) -> tuple[Policy, WorldConfig]:
+    """The policy and its world config named by the policy arguments of ``eval`` and ``render``."""
+    from crowdplan.policies import load_policy
+
+    return load_policy(
+        args.policy,
+        args.model,
+        args.shield,
+        args.lookahead,
+        args.lookahead_precision,
+        args.lookahead_compile,
+    )
+
+
 def _add_output_args(parser: argparse.ArgumentParser, what: str) -> None:
     parser.add_argument(
         "--force", action="store_true", help=f"replace {what} that already exist(s) in --out"
@@ -77,7 +96,7 @@ def _add_output_args(parser: argparse.ArgumentParser, what: str) -> None:
 def cmd_eval(args: argparse.Namespace) -> int:
     from crowdplan import evaluation
     from crowdplan.io import check_output_folder
-    from crowdplan.policies import load_policy, run_metadata
+    from crowdplan.policies import run_metadata
     from crowdplan.progress import Progress
 
     if args.episodes is not None and args.episodes < 1:
@@ -95,14 +114,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.out:
         files = RESULT_FILES + (("records.npz",) if args.record else ())
         check_output_folder(args.out, files, args.force)
-    policy, base = load_policy(
-        args.policy,
-        args.model,
-        args.shield,
-        args.lookahead,
-        args.lookahead_precision,
-        args.lookahead_compile,
-    )
+    policy, base = _policy_from_args(args)
     config = world_from_args(args, policy, base)
 
     records: list = []
@@ -154,21 +166,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
 def cmd_render(args: argparse.Namespace) -> int:
     from crowdplan import evaluation
     from crowdplan.io import check_output_file
-    from crowdplan.policies import load_policy
     from crowdplan.sim.render import RENDER_SUFFIXES, save_render
 
     if args.case < 0:
         raise ValueError(f"--case must be >= 0, got {args.case}")
     seed = evaluation.SPLITS[args.split].seed(args.case)
     check_output_file(args.out, args.force, RENDER_SUFFIXES)
-    policy, base = load_policy(
-        args.policy,
-        args.model,
-        args.shield,
-        args.lookahead,
-        args.lookahead_precision,
-        args.lookahead_compile,
-    )
+    policy, base = _policy_from_args(args)
     config = world_from_args(args, policy, base)
     (record,) = evaluation.run_episodes(policy, config, [seed], record_traces=True)
     title = f"{policy.name}, {args.split} case {args.case}: {record.outcome} at {record.time:.2f} s"
