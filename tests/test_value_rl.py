@@ -304,3 +304,22 @@ def test_presets_load(preset, network, humans):
     config = load_config(f"configs/{preset}.yaml")
     assert config.algo == "value_rl" and config.algo_config.network == network
     assert config.world.humans == humans and config.algo_config.il_episodes == 3000
+
+
+def test_a_compiled_value_policy_pickles_and_compiles_again():
+    """Sharded evaluation sends the policy to worker processes: a compiled policy arrives
+    compiled, and chooses the same actions."""
+    import pickle
+
+    from crowdplan.models import load_model_policy
+    from crowdplan.sim.world import World
+
+    policy, config = load_model_policy("cadrl")
+    world = World(config, 3)
+    world.reset(np.arange(3) + 1000)
+    robot, humans, mask = world.observe()
+    eager = policy.greedy(robot, humans, mask.astype(bool), world)
+    policy.set_compiled(True)
+    received = pickle.loads(pickle.dumps(policy))
+    assert received.compiled and received.metadata["lookahead_compiled"] is True
+    np.testing.assert_array_equal(received.greedy(robot, humans, mask.astype(bool), world), eager)
