@@ -72,7 +72,10 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=40)
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument(
-        "--threads", type=int, default=1, help="also time both by wall clock on this many threads"
+        "--threads",
+        type=int,
+        default=1,
+        help="also time every variant by wall clock on this many threads",
     )
     parser.add_argument("--compile", action="store_true", help="also time both precisions compiled")
     args = parser.parse_args()
