@@ -149,9 +149,7 @@ class ValuePolicy:
         float32."""
         check_precision(precision)
         self.precision = precision
-        self.metadata.pop("lookahead_precision", None)
-        if precision != "float32":
-            self.metadata["lookahead_precision"] = precision
+        self._record_option("lookahead_precision", precision, default="float32")
 
     def set_compiled(self, compiled: bool) -> None:
         """Run the lookahead's value calls through ``torch.compile`` (``compiled``) or eagerly;
@@ -160,9 +158,14 @@ class ValuePolicy:
         if compiled and self._compiled_net is None:
             self._compiled_net = compiled_value_network(self.net)
         self.compiled = compiled
-        self.metadata.pop("lookahead_compiled", None)
-        if compiled:
-            self.metadata["lookahead_compiled"] = True
+        self._record_option("lookahead_compiled", compiled, default=False)
+
+    def _record_option(self, key: str, value: Any, default: Any) -> None:
+        """Write an option to the metadata (and so to every result) unless it has its default,
+        so that results made with the defaults keep the keys they always had."""
+        self.metadata.pop(key, None)
+        if value != default:
+            self.metadata[key] = value
 
     def __getstate__(self) -> dict[str, Any]:
         # a compiled module does not pickle (sharded evaluation sends the policy to workers):
