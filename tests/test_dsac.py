@@ -5,10 +5,12 @@ from __future__ import annotations
 import copy
 import io
 import math
+import warnings
 
 import pytest
 import torch
 
+from crowdplan.algos.base import frozen_copy
 from crowdplan.algos.dsac import DSAC, DSACConfig
 from crowdplan.nets.encoders import ENCODER_NAMES, EncoderConfig
 
@@ -166,6 +168,22 @@ def test_target_critic_is_a_polyak_average():
         torch.equal(t, o)
         for t, o in zip(agent.critic_target.parameters(), agent.critic.parameters(), strict=True)
     )
+
+
+def test_frozen_copy_is_an_equal_detached_network():
+    critic = DSAC(DSACConfig(), EncoderConfig(name="lsa", max_humans=3)).critic
+    target = frozen_copy(critic)
+    for p, q in zip(critic.parameters(), target.parameters(), strict=True):
+        assert torch.equal(p, q) and p.data_ptr() != q.data_ptr() and not q.requires_grad
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_target_critic_lstm_runs_without_compacting_its_weights():
+    agent = DSAC(DSACConfig(), EncoderConfig(name="lsa", max_humans=3), device="cuda")
+    batch = {k: v.cuda() for k, v in small_batch().items()}
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*single contiguous chunk of memory.*")
+        agent.update(batch)
 
 
 def test_temperature_moves_towards_the_target_entropy():

@@ -11,10 +11,12 @@ An agent must be an exact function of its seed: the loop checkpoints :meth:`Agen
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
+from torch import nn
 
 from crowdplan.features import Features, robot_centric
 from crowdplan.policy import Policy
@@ -22,6 +24,20 @@ from crowdplan.policy import Policy
 Observation = dict[str, np.ndarray]
 """Raw batched observation of E environments: ``robot`` (E, 9), ``humans`` (E, N, 5), ``mask``
 (E, N), as :class:`crowdplan.sim.env.CrowdNavVectorEnv` returns it."""
+
+
+def frozen_copy(module: nn.Module) -> nn.Module:
+    """A deep copy of ``module`` with gradients off, to serve as its target network.
+
+    A deep copy gives each recurrent layer's weights their own tensors; on CUDA, cuDNN would then
+    copy them into one block at every call (and warn), so they are re-packed here once. On the
+    CPU ``flatten_parameters`` does nothing and the copy is exactly ``copy.deepcopy``.
+    """
+    target = copy.deepcopy(module).requires_grad_(False)
+    for layer in target.modules():
+        if isinstance(layer, nn.RNNBase):
+            layer.flatten_parameters()
+    return target
 
 
 def observation_features(obs: Observation, unicycle: bool) -> Features:

@@ -11,7 +11,6 @@ policy is the argmax of Q.
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -21,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from crowdplan.algos.base import Observation, StepFeatures, Transitions
+from crowdplan.algos.base import Observation, StepFeatures, Transitions, frozen_copy
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.config import WorldConfig, check_below, check_fields, from_dict, spec, to_dict
 from crowdplan.models import GreedyPolicy, load_weights, require_format
@@ -128,7 +127,7 @@ class DQNAgent:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(config.seed)
             self.q = QNetwork(make_encoder(config.encoder), self.params.q_hidden).to(device)
-        self.q_target = copy.deepcopy(self.q).requires_grad_(False)
+        self.q_target = frozen_copy(self.q)
         self.optimizer = torch.optim.Adam(self.q.parameters(), lr=self.params.lr)
         self.buffer = ReplayBuffer(
             self.params.buffer_size, config.world.humans, seed=config.seed + 1

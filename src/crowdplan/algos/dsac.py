@@ -17,7 +17,6 @@ bootstraps through it. ``gamma`` is the discount per environment step, used as g
 
 from __future__ import annotations
 
-import copy
 import math
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass
@@ -27,6 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from crowdplan.algos.base import frozen_copy
 from crowdplan.algos.cuda_graph import GraphedStep
 from crowdplan.config import check_below, check_fields, spec
 from crowdplan.nets.encoders import Encoder, EncoderConfig, make_encoder, unpacked_lstm
@@ -269,7 +269,7 @@ class DSAC:
             )
         self.critic.to(self.device)
         self.actor.to(self.device)
-        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        self.critic_target = frozen_copy(self.critic)
         self.log_alpha = torch.tensor(
             math.log(config.init_alpha), device=self.device, requires_grad=True
         )

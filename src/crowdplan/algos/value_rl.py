@@ -25,7 +25,6 @@ a time-limit truncation bootstraps instead of ending the return; candidates that
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -35,7 +34,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from crowdplan.algos.base import Observation, Transitions, observation_features
+from crowdplan.algos.base import Observation, Transitions, frozen_copy, observation_features
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.imitation import collect_demonstrations, demonstration_seeds, fit_values
 from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
@@ -219,7 +218,7 @@ class ValueRLAgent:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(config.seed)
             self.net = make_value_network(self.params.network).to(device)
-        self.target = copy.deepcopy(self.net).requires_grad_(False)
+        self.target = frozen_copy(self.net)
         self.optimizer = torch.optim.SGD(
             self.net.parameters(), lr=self.params.lr, momentum=self.params.momentum
         )
