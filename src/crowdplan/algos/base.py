@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 from torch import nn
@@ -26,7 +26,10 @@ Observation = dict[str, np.ndarray]
 (E, N), as :class:`crowdplan.sim.env.CrowdNavVectorEnv` returns it."""
 
 
-def frozen_copy(module: nn.Module) -> nn.Module:
+ModuleT = TypeVar("ModuleT", bound=nn.Module)
+
+
+def frozen_copy(module: ModuleT) -> ModuleT:
     """A deep copy of ``module`` with gradients off, to serve as its target network.
 
     A deep copy gives each recurrent layer's weights their own tensors; on CUDA, cuDNN would then
