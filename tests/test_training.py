@@ -49,6 +49,15 @@ def test_run_records_the_commit_it_started_with(tmp_path, monkeypatch):
     assert meta["git"] == "started-with"
 
 
+def test_run_records_the_machine_it_computes_on(tmp_path):
+    meta = json.loads(
+        (train_tiny(TINY, tmp_path, "a", episodes=2).run_dir / "meta.json").read_text()
+    )
+    assert meta["host"]["torch"] == torch.__version__
+    assert meta["host"]["torch_cpu_capability"] == torch.backends.cpu.get_cpu_capability()
+    assert meta["host"]["cpu"]
+
+
 def test_resume_with_other_validation_settings_and_update_threads_trains_identically(tmp_path):
     straight = train_tiny(TINY, tmp_path, "straight", episodes=8)
     first = train_tiny(TINY, tmp_path, "resumed", episodes=3)

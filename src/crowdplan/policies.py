@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import platform
 import subprocess
 from pathlib import Path
 from typing import Any
 
+import torch
 import yaml
 
 from crowdplan.config import WorldConfig, to_dict
@@ -154,6 +156,25 @@ def git_hash() -> str | None:
     except (OSError, subprocess.CalledProcessError):
         return None
     return head + ("+dirty" if dirty else "")
+
+
+def host_description() -> dict[str, str]:
+    """The machine a process computes on: CPU model, the instruction set torch's CPU kernels use,
+    and the torch build. The same code and seed can round differently on another host, so runs
+    that part ways from their first updates can be told apart by it (docs/training.md section 7)."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {
+        "cpu": cpu,
+        "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        "torch": torch.__version__,
+    }
 
 
 def run_metadata(policy: Policy, config: WorldConfig, seeds: list[int], split: str) -> dict:

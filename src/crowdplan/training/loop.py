@@ -35,7 +35,7 @@ from crowdplan.algos.base import Transitions
 from crowdplan.algos.registry import get_algorithm
 from crowdplan.config import to_dict
 from crowdplan.models import load_model_policy
-from crowdplan.policies import git_hash, run_metadata
+from crowdplan.policies import git_hash, host_description, run_metadata
 from crowdplan.policy import Policy
 from crowdplan.progress import Progress
 from crowdplan.sim.env import TRAIN_SEED_BASE, CrowdNavVectorEnv
@@ -90,6 +90,7 @@ class Trainer:
         self._display_options = {"bar": progress, "quiet": quiet}
         # the commit of the code this process runs: read once, since the tree may move on
         self.code_version = git_hash()
+        self.host = host_description()  # of this process: a resumed run records its own
         if config.device != "cpu" and not torch.cuda.is_available():
             raise ValueError(
                 f"device {config.device!r} was asked for but CUDA is not available here: set "
@@ -260,6 +261,7 @@ class Trainer:
             "train_seconds": self.train_seconds,
             "hours_per_10k_episodes": self.train_seconds / max(done, 1) * 10000 / 3600,
             "torch_threads": torch.get_num_threads(),
+            "host": self.host,
         }
 
     def write_logs(self) -> None:
