@@ -3,6 +3,7 @@ the CLI, and bad input."""
 
 import dataclasses
 import json
+import pickle
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from crowdplan.config import WorldConfig
 from crowdplan.models import load_model_policy, load_payload
 from crowdplan.nets.encoders import masked_softmax
 from crowdplan.nets.value import VALUE_NETWORKS, make_value_network
+from crowdplan.sim.world import World
 from crowdplan.training import Trainer, config_from_dict, load_config
 
 TINY = {
@@ -309,11 +311,6 @@ def test_presets_load(preset, network, humans):
 def test_a_compiled_value_policy_pickles_and_compiles_again():
     """Sharded evaluation sends the policy to worker processes: a compiled policy arrives
     compiled, and chooses the same actions."""
-    import pickle
-
-    from crowdplan.models import load_model_policy
-    from crowdplan.sim.world import World
-
     policy, config = load_model_policy("cadrl")
     world = World(config, 3)
     world.reset(np.arange(3) + 1000)
