@@ -146,6 +146,13 @@ def test_a_run_validated_in_another_world_says_so(runs, tmp_path):
     text = paper_report([*_args(runs, tmp_path)[:-1], f"CADRL={cadrl}"], PAGE)
     assert _rows(text, "Table II")["CADRL"][:2] == ["cadrl-s3", "1 human, validated with 5"]
     assert _rows(text, "Table II")["SARL"][1] == "5 humans"
+    # the paper's converged reward is in the training world: not compared with a 5-human one
+    notes = text.split("Reading notes")[1]
+    table_ii = next(line for line in notes.splitlines() if "Table II" in line)
+    assert table_ii.endswith(
+        "; not compared, validated with another crowd than trained with (CADRL)."
+    )
+    assert "Table VI, success: as good as the paper or better (CADRL, SARL)" in notes
 
 
 def test_methods_without_runs_show_the_paper_value(runs, tmp_path):

@@ -71,6 +71,16 @@ class Run:
         last = [float(v["mean_reward"]) for v in self.validations[-CONVERGED_LAST:]]
         return sum(last) / len(last) if last else None
 
+    @property
+    def validated_elsewhere(self) -> bool:
+        """Whether the run validated with another crowd size than it trained with (CADRL
+        trained with one human and validated with five): its converged reward is then not the
+        paper's, which is measured in the training world."""
+        if self.config is None:
+            return False
+        val_humans = self.config.get("val_humans")
+        return val_humans is not None and val_humans != self.config["world"]["humans"]
+
     def value(self, key: str, scenario: str = "circle") -> float | None:
         """A metric of the circle (or ``scenario="square"``) test; None when not measured."""
         summary = self.circle if scenario == "circle" else self.square
@@ -394,6 +404,7 @@ NOTE_GROUPS = (
     "worse, the paper's value inside our 95% interval",
     "worse than the paper",
     "no result yet",
+    "not compared, validated with another crowd than trained with",
 )
 
 
@@ -421,17 +432,23 @@ def _over_runs(values: list[float | None], rate: bool = False) -> Estimate:
 
 
 def _compare_line(
-    what: str, ours: dict[str, Estimate], theirs: dict[str, float | None], higher: bool
+    what: str,
+    ours: dict[str, Estimate],
+    theirs: dict[str, float | None],
+    higher: bool,
+    not_compared: frozenset[str] = frozenset(),
 ) -> str:
     """'what: as good as the paper or better (A); worse ... (B); no result yet (C)', for the
-    methods the paper gives a value for."""
+    methods the paper gives a value for; ``not_compared`` methods are listed apart."""
     groups: dict[str, list[str]] = {g: [] for g in NOTE_GROUPS}
     for method in METHODS:
         b = theirs.get(method)
         if b is None:
             continue
         a, ci = ours.get(method, (None, None))
-        if a is None:
+        if method in not_compared:
+            group = NOTE_GROUPS[4]
+        elif a is None:
             group = NOTE_GROUPS[3]
         elif (a >= b) if higher else (a <= b):
             group = NOTE_GROUPS[0]
@@ -467,6 +484,9 @@ def reading_notes(runs: dict[str, list[Run]], paper: dict) -> str:
             {m: _over_runs([r.converged_reward for r in g]) for m, g in runs.items()},
             {m: _paper_float(paper["II"].get(m)) for m in METHODS},
             higher=True,
+            not_compared=frozenset(
+                m for m, g in runs.items() if any(r.validated_elsewhere for r in g)
+            ),
         ),
         _compare_line(
             "Table VIII, square success",
