@@ -230,9 +230,8 @@ def _training(run: Run) -> str:
         text += f", target entropy {_target_entropy(dsac)}"
         if run.config.get("name"):  # the preset holds the rest of the recipe
             text += f" (preset {run.config['name']})"
-    val_humans = run.config.get("val_humans")
-    if val_humans is not None and val_humans != humans:
-        text += f", validated with {val_humans}"  # table II's reward is from that world
+    if run.validated_elsewhere:  # table II's reward is from that world
+        text += f", validated with {run.config['val_humans']}"
     return text
 
 
