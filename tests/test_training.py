@@ -209,6 +209,20 @@ def test_shipped_presets_load():
     assert config.algo_config.gamma == pytest.approx(per_second, abs=1e-9)
 
 
+def test_ten_human_preset_continues_a_five_human_run():
+    from crowdplan.algos.dsac_agent import NETWORK_KEYS, initial_networks
+
+    avg = load_config("configs/lsa_dsac_aln_avg.yaml")
+    from5 = load_config("configs/lsa_dsac_aln_avg_h10_from5.yaml")
+    assert from5.world == dataclasses.replace(avg.world, humans=10)
+    ours, theirs = dataclasses.asdict(from5.algo_config), dataclasses.asdict(avg.algo_config)
+    changed = {key for key in ours if ours[key] != theirs[key]}
+    start = {"init_networks", "actor_warmup_updates", "random_steps", "learning_starts"}
+    assert changed <= start | {"init_alpha"}  # the temperature comes with the networks
+    # the published networks file fits the preset (encoder, action frame) and holds every network
+    assert set(initial_networks(from5)) == set(NETWORK_KEYS)
+
+
 def test_update_to_data_ratio(tmp_path):
     config = config_from_dict({**TINY, "dsac": {"batch_size": 16, "updates_per_step": 0.5}})
     trainer = Trainer(dataclasses.replace(config, episodes=2), tmp_path / "utd", progress=False)
