@@ -209,11 +209,12 @@ def test_shipped_presets_load():
     assert config.algo_config.gamma == pytest.approx(per_second, abs=1e-9)
 
 
-def test_ten_human_preset_continues_a_five_human_run():
+@pytest.mark.parametrize("encoder", ["lsa", "aw", "sa"])
+def test_ten_human_preset_continues_a_five_human_run(encoder):
     from crowdplan.algos.dsac_agent import NETWORK_KEYS, initial_networks
 
-    avg = load_config("configs/lsa_dsac_aln_avg.yaml")
-    from5 = load_config("configs/lsa_dsac_aln_avg_h10_from5.yaml")
+    avg = load_config(f"configs/{encoder}_dsac_aln_avg.yaml")
+    from5 = load_config(f"configs/{encoder}_dsac_aln_avg_h10_from5.yaml")
     assert from5.world == dataclasses.replace(avg.world, humans=10)
     ours, theirs = dataclasses.asdict(from5.algo_config), dataclasses.asdict(avg.algo_config)
     changed = {key for key in ours if ours[key] != theirs[key]}
