@@ -91,14 +91,14 @@ def test_init_model_loads_the_policy_and_checks_the_action_frame(tmp_path):
 
 
 def test_init_networks_continues_a_run_from_its_checkpoint_or_networks_file(tmp_path):
-    from crowdplan.algos.dsac_agent import NETWORK_KEYS, save_networks
+    from crowdplan.algos.dsac_networks import NETWORK_KEYS, main
 
     tiny = {**TINY, "dsac": {"random_steps": 2, "learning_starts": 2}}
     first = Trainer(config_from_dict(tiny), tmp_path / "first", progress=False)
     first.run()
     saved = torch.load(tmp_path / "first" / "checkpoint.pt", weights_only=False)
     expected = saved["agent"]["dsac"]
-    save_networks(tmp_path / "first" / "checkpoint.pt", tmp_path / "networks.pt")
+    assert main([str(tmp_path / "first" / "checkpoint.pt"), str(tmp_path / "networks.pt")]) == 0
     for source in (tmp_path / "first", tmp_path / "networks.pt"):
         config = config_from_dict({**TINY, "dsac": {"init_networks": str(source)}})
         core = Trainer(config, tmp_path / f"from-{source.name}", progress=False).agent.core
@@ -108,9 +108,16 @@ def test_init_networks_continues_a_run_from_its_checkpoint_or_networks_file(tmp_
         assert torch.equal(core.log_alpha.detach(), expected["log_alpha"])
 
 
-def test_init_networks_refuses_other_encoders_and_init_model_together(tmp_path):
+def test_init_networks_and_the_networks_command_refuse_wrong_input(tmp_path, capsys):
+    from crowdplan.algos.dsac_networks import main
+
     tiny = {**TINY, "dsac": {"random_steps": 2, "learning_starts": 2}}
     Trainer(config_from_dict(tiny), tmp_path / "first", progress=False).run()
+    for source, error in (("nothing.pt", "does not exist"), ("best_model.pt", "not a crowdplan")):
+        with pytest.raises(SystemExit):
+            main([str(tmp_path / "first" / source), str(tmp_path / "networks.pt")])
+        assert error in capsys.readouterr().err
+    assert not (tmp_path / "networks.pt").exists()
     other = {**TINY, "encoder": {"name": "rg"}, "dsac": {"init_networks": str(tmp_path / "first")}}
     with pytest.raises(ValueError, match="has encoder"):
         Trainer(config_from_dict(other), tmp_path / "other", progress=False)

@@ -211,7 +211,7 @@ def test_shipped_presets_load():
 
 @pytest.mark.parametrize("encoder", ["lsa", "aw", "sa"])
 def test_ten_human_preset_continues_a_five_human_run(encoder):
-    from crowdplan.algos.dsac_agent import NETWORK_KEYS, initial_networks
+    from crowdplan.algos.dsac_networks import NETWORK_KEYS, initial_networks
 
     avg = load_config(f"configs/{encoder}_dsac_aln_avg.yaml")
     from5 = load_config(f"configs/{encoder}_dsac_aln_avg_h10_from5.yaml")

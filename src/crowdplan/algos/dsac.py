@@ -81,7 +81,7 @@ class DSACConfig:
         init_model: a DSAC model file (or shipped model name) whose policy initialises the
             actor (fine-tuning); it must have the same encoder and action frame as the run.
         init_networks: a DSAC training checkpoint (``checkpoint.pt``) or a networks file
-            written from one (:func:`crowdplan.algos.dsac_agent.save_networks`) whose actor,
+            written from one (:func:`crowdplan.algos.dsac_networks.save_networks`) whose actor,
             critic, target critic and temperature start the run (continuing a run in another
             world); same encoder and action frame as the run; not together with ``init_model``.
         actor_warmup_updates: updates during which only the critic learns (policy and

@@ -6,7 +6,6 @@ The maths of an update is in :mod:`crowdplan.algos.dsac`; this module only feeds
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -15,6 +14,7 @@ import torch
 from crowdplan.algos.base import Observation, StepFeatures, Transitions
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.dsac import DSAC
+from crowdplan.algos.dsac_networks import initial_networks
 from crowdplan.algos.imitation import collect_demonstrations, demonstration_seeds, fit_actions
 from crowdplan.config import to_dict
 from crowdplan.models import MODEL_FORMAT, DSACPolicy, model_payload
@@ -43,60 +43,6 @@ def initial_actor_state(config: TrainConfig) -> dict[str, torch.Tensor]:
             f"{config.world.action_frame} frame (see crowdplan.algos.action_frames)"
         )
     return payload["actor"]
-
-
-NETWORK_KEYS = ("actor", "critic", "critic_target", "log_alpha")
-NETWORKS_FORMAT = "crowdplan-dsac-networks/1"
-
-
-def _dsac_networks(state: dict[str, Any], path: Path) -> dict[str, Any]:
-    """The networks and temperature of a loaded checkpoint or networks file."""
-    if state.get("format") == NETWORKS_FORMAT:
-        return state["networks"]
-    dsac = state["agent"].get("dsac") if isinstance(state.get("agent"), dict) else None
-    if dsac is None:
-        raise ValueError(f"{path} is not a DSAC training checkpoint")
-    return {key: dsac[key] for key in NETWORK_KEYS}
-
-
-def save_networks(checkpoint: Path, out: Path) -> None:
-    """Write the DSAC networks and temperature of a training checkpoint, with the run's config,
-    to ``out`` (a few MB instead of a checkpoint's replay buffer), for ``dsac.init_networks``."""
-    from crowdplan.training.checkpoint import read_checkpoint, torch_save_atomic
-
-    state = read_checkpoint(checkpoint)
-    networks = _dsac_networks(state, checkpoint)
-    torch_save_atomic(
-        out, {"format": NETWORKS_FORMAT, "config": state["config"], "networks": networks}
-    )
-
-
-def initial_networks(config: TrainConfig) -> dict[str, Any]:
-    """The networks of ``config.algo_config.init_networks``, checked against the run."""
-    from crowdplan.training.checkpoint import read_checkpoint
-
-    path = Path(config.algo_config.init_networks)
-    if path.is_dir():
-        path = path / "checkpoint.pt"
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"dsac.init_networks {path} does not exist: give a run's checkpoint.pt or a file "
-            "written by save_networks"
-        )
-    state = read_checkpoint(path, also=(NETWORKS_FORMAT,))
-    networks, saved = _dsac_networks(state, path), state["config"]
-    encoder = saved.get("encoder")
-    if encoder != to_dict(config.encoder):
-        raise ValueError(
-            f"dsac.init_networks {path} has encoder {encoder}, the run {to_dict(config.encoder)}"
-        )
-    frame = saved.get("world", {}).get("action_frame", "world")
-    if frame != config.world.action_frame:
-        raise ValueError(
-            f"dsac.init_networks {path} acts in the {frame} frame, the run in the "
-            f"{config.world.action_frame} frame"
-        )
-    return networks
 
 
 class DSACAgent:

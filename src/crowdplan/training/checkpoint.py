@@ -27,7 +27,7 @@ def read_checkpoint(path: Path, also: tuple[str, ...] = ()) -> dict[str, Any]:
     """Load a training checkpoint, turning damage or foreign files into a clear ValueError.
 
     ``also``: other file formats to return as they are (e.g. a networks file taken from a
-    checkpoint, :func:`crowdplan.algos.dsac_agent.save_networks`)."""
+    checkpoint, :func:`crowdplan.algos.dsac_networks.save_networks`)."""
     try:
         state = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as error:  # a truncated or foreign file raises many types
