@@ -209,7 +209,7 @@ def test_shipped_presets_load():
     assert config.algo_config.gamma == pytest.approx(per_second, abs=1e-9)
 
 
-@pytest.mark.parametrize("encoder", ["lsa", "aw", "sa"])
+@pytest.mark.parametrize("encoder", ["lsa", "rg", "aw", "sa"])
 def test_ten_human_preset_continues_a_five_human_run(encoder):
     from crowdplan.algos.dsac_networks import NETWORK_KEYS, initial_networks
 
