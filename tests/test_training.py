@@ -219,7 +219,7 @@ def test_ten_human_preset_continues_a_five_human_run(encoder):
     ours, theirs = dataclasses.asdict(from5.algo_config), dataclasses.asdict(avg.algo_config)
     changed = {key for key in ours if ours[key] != theirs[key]}
     start = {"init_networks", "actor_warmup_updates", "random_steps", "learning_starts"}
-    # the temperature comes with the networks; AW's critic is held near its target (q_clip)
+    # the temperature comes with the networks; AW's and RG's critics are held near their targets
     assert changed <= start | {"init_alpha", "q_clip"}
     # the published networks file fits the preset (encoder, action frame) and holds every network
     assert set(initial_networks(from5)) == set(NETWORK_KEYS)
