@@ -156,6 +156,17 @@ def _gather_rows(x: Tensor, index: Tensor) -> Tensor:
     return x.gather(1, index.unsqueeze(-1).expand(-1, -1, x.shape[-1]))
 
 
+def _in_lstm_order(humans: Tensor, mask: Tensor, order: str) -> tuple[Tensor, Tensor, Tensor]:
+    """The humans and mask put in LSTM ``order`` up front, and the permutation index used."""
+    index = order_humans(humans, mask, order)
+    return _gather_rows(humans, index), mask.gather(1, index), index
+
+
+def _in_input_order(weights: Tensor, index: Tensor) -> Tensor:
+    """Per-human ``weights`` (B, N) computed in the order ``index`` put back in input order."""
+    return torch.empty_like(weights).scatter_(1, index, weights)
+
+
 def lstm_last_hidden(lstm: nn.LSTM, seq: Tensor, lengths: Tensor) -> Tensor:
     """Last hidden state of ``lstm`` over ``seq`` (B, T, D) whose first ``lengths[b]`` steps are
     valid. Rows of length 0 give zeros."""
@@ -274,10 +285,8 @@ class AttentionEncoder(Encoder):
         humans = _zero_padding(humans, mask)
         index = None
         if self.lstm is not None:
-            # put the humans in LSTM order up front (a cheap gather of the inputs, not of the
-            # 50-d features) and undo it on the attention weights at the end
-            index = order_humans(humans, mask, self.order)
-            humans, mask = _gather_rows(humans, index), mask.gather(1, index)
+            # a cheap gather of the inputs, not of the 50-d features
+            humans, mask, index = _in_lstm_order(humans, mask, self.order)
         pair = torch.cat([robot.unsqueeze(1).expand(-1, humans.shape[1], -1), humans], dim=-1)
         e = self.f_e(pair)
         h = self.f_h(torch.cat([e, pair], dim=-1) if self.skip else e)
@@ -286,7 +295,7 @@ class AttentionEncoder(Encoder):
         if self.lstm is None:
             return torch.cat([robot, weighted.sum(dim=1)], dim=1), attention
         s_o = lstm_last_hidden(self.lstm, weighted, mask.sum(dim=1))
-        attention = torch.empty_like(attention).scatter_(1, index, attention)
+        attention = _in_input_order(attention, index)
         return torch.cat([robot, s_o], dim=1), attention
 
 
@@ -351,9 +360,8 @@ class RelationalGraphEncoder(Encoder):
         humans = _zero_padding(humans, mask)
         index = None
         if self.lstm is not None:
-            # the graph is permutation-equivariant: put the humans in LSTM order up front
-            index = order_humans(humans, mask, self.order)
-            humans, mask = _gather_rows(humans, index), mask.gather(1, index)
+            # the graph is permutation-equivariant: the order only matters to the LSTM
+            humans, mask, index = _in_lstm_order(humans, mask, self.order)
         x = torch.cat([self.w_r(robot).unsqueeze(1), self.w_h(humans)], dim=1)  # (B, M, w)
         node_mask = torch.cat([mask.new_ones(mask.shape[0], 1), mask], dim=1)  # (B, M)
         pair_hidden = torch.relu(self.w_a_i(x).unsqueeze(2) + self.w_a_j(x).unsqueeze(1))
@@ -363,7 +371,7 @@ class RelationalGraphEncoder(Encoder):
             h = torch.relu(a @ w_l(h)) + h
         attention = a[:, 0, 1:]
         if index is not None:
-            attention = torch.empty_like(attention).scatter_(1, index, attention)
+            attention = _in_input_order(attention, index)
         return self._pool(h[:, 0], h[:, 1:], mask), attention
 
     def _pool(self, h_rob: Tensor, h_obs: Tensor, mask: Tensor) -> Tensor:
