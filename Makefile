@@ -32,8 +32,8 @@ bench: setup
 	$(PY) benchmarks/bench_sim.py
 	$(PY) benchmarks/bench_update.py
 
-# Copy the small artefacts of a training run into results/ (for DSAC also its last networks, which
-# dsac.init_networks can start another run from) and test its best model on the 500
+# Copy the small artefacts of a training run into results/ (for a DSAC run with a checkpoint also
+# its last networks, which dsac.init_networks can start another run from) and test its best model on the 500
 # circle_crossing and the 500 square_crossing (transfer) test cases:
 #   make publish RUN=runs/lsa_dsac-s0
 # EVAL_ARGS go to both evaluations, e.g. EVAL_ARGS="--humans 5" for CADRL, which trains with one
@@ -43,7 +43,7 @@ publish: setup
 	@test -n "$(RUN)" || (echo "usage: make publish RUN=runs/<run>"; exit 2)
 	mkdir -p results/train/$(notdir $(RUN))
 	cp $(addprefix $(RUN)/,config.yaml meta.json episodes.csv validation.csv updates.csv curves.png best_model.pt) results/train/$(notdir $(RUN))/
-	if grep -q '"algo": "dsac"' $(RUN)/meta.json; then $(PY) -m crowdplan.algos.dsac_networks $(RUN)/checkpoint.pt results/train/$(notdir $(RUN))/networks.pt; fi
+	if grep -q '"algo": "dsac"' $(RUN)/meta.json && test -f $(RUN)/checkpoint.pt; then $(PY) -m crowdplan.algos.dsac_networks $(RUN)/checkpoint.pt results/train/$(notdir $(RUN))/networks.pt; fi
 	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 $(EVAL_ARGS) --out results/train/$(notdir $(RUN))/test --force
 	$(BIN)/crowdplan eval --model $(RUN)/best_model.pt --episodes 500 --scenario square_crossing $(EVAL_ARGS) --out results/train/$(notdir $(RUN))/test-square --force
 
