@@ -12,6 +12,8 @@ best_model.pt, meta.json and config.yaml; episodes.csv and updates.csv are copie
 
 Validations before the first kept model (a run resumed with ``--keep-validation-models``) are
 left out; the first K - 1 rows after it average fewer than K policies, and meta.json says so.
+``--select-by success`` replays the best-model selection of ``select_by: success`` as well (with
+``--average 1``: the run's own policies under that rule).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from crowdplan.io import atomic_write, write_json
 from crowdplan.models import load_payload
 from crowdplan.training.checkpoint import torch_save_atomic
 from crowdplan.training.config import TrainConfig, load_config
-from crowdplan.training.loop import validation_row
+from crowdplan.training.loop import selection_score, validation_row
 from crowdplan.training.policy_average import average_payloads, payload_policy
 from crowdplan.training.run_logs import write_csv
 
@@ -51,12 +53,12 @@ def validation_models(run: Path) -> list[tuple[int, Path]]:
 def replay(
     run: Path, average: int, config: TrainConfig
 ) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
-    """Validation rows of the averaged policies and the best model (by mean reward, the first
-    of equals, as the training loop keeps it)."""
+    """Validation rows of the averaged policies and the best model (by the config's
+    ``select_by``, the first of equals, as the training loop keeps it)."""
     own_rows = _read_csv(run / "validation.csv")
     steps = {int(row["episode"]): int(row["env_steps"]) for row in own_rows}
     recent: list[dict[str, Any]] = []
-    rows, best, best_reward = [], None, float("-inf")
+    rows, best, best_score = [], None, None
     for episode, path in validation_models(run):
         payload = load_payload(path)
         payload["info"] = {k: v for k, v in payload["info"].items() if k != "success_rate"}
@@ -64,14 +66,18 @@ def replay(
         averaged = average_payloads(recent)
         row = validation_row(payload_policy(averaged, config.name), config, episode, steps[episode])
         rows.append(row)
-        if row["mean_reward"] > best_reward:
-            best_reward = row["mean_reward"]
+        score = selection_score(row, config.select_by)
+        if best_score is None or score > best_score:
+            best_score = score
             best = {**averaged, "info": {**averaged["info"], "selected_at_episode": episode}}
     return rows, best
 
 
-def write_averaged_run(run: Path, average: int, out: Path) -> list[dict[str, Any]]:
-    """The run folder ``policy_average: average`` would have made, in ``out`` (new or empty)."""
+def write_averaged_run(
+    run: Path, average: int, out: Path, select_by: str | None = None
+) -> list[dict[str, Any]]:
+    """The run folder ``policy_average: average`` (and ``select_by``, if given) would have
+    made, in ``out`` (new or empty)."""
     if out.exists() and any(out.iterdir()):
         raise ValueError(f"{out} is not empty; give a new folder so that nothing is overwritten")
     config = dataclasses.replace(
@@ -79,6 +85,8 @@ def write_averaged_run(run: Path, average: int, out: Path) -> list[dict[str, Any
         policy_average=average,
         keep_validation_models=False,
     )
+    if select_by is not None:
+        config = dataclasses.replace(config, select_by=select_by)
     rows, best = replay(run, average, config)
     out.mkdir(parents=True, exist_ok=True)
     for name in ("episodes.csv", "updates.csv"):
@@ -93,13 +101,16 @@ def write_averaged_run(run: Path, average: int, out: Path) -> list[dict[str, Any
     meta["averaged_validation"] = {
         "from_run": str(run),
         "policy_average": average,
+        "select_by": config.select_by,
         "validations_left_out": [
             int(r["episode"])
             for r in _read_csv(run / "validation.csv")
             if int(r["episode"]) < rows[0]["episode"]
         ],
         "command": f"python -m crowdplan.analysis.averaged_validation {run} "
-        f"--average {average} --out {out}",
+        f"--average {average}"
+        + (f" --select-by {select_by}" if select_by is not None else "")
+        + f" --out {out}",
     }
     write_json(out / "meta.json", meta)
     plot_training_curves(out)
@@ -117,14 +128,23 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("run", type=Path, help="run folder with validation_models/")
     parser.add_argument(
-        "--average", type=int, required=True, help="policies averaged (policy_average), >= 2"
+        "--average", type=int, required=True, help="policies averaged (policy_average)"
+    )
+    parser.add_argument(
+        "--select-by",
+        choices=("reward", "success"),
+        help="best-model selection to replay (default: the run's select_by)",
     )
     parser.add_argument("--out", type=Path, required=True, help="new run folder to write")
     args = parser.parse_args(argv)
-    if args.average < 2:
-        parser.error(f"--average must be >= 2 (1 is the run itself), got {args.average}")
+    lowest = 1 if args.select_by is not None else 2
+    if args.average < lowest:
+        parser.error(
+            f"--average must be >= 2, or >= 1 with --select-by (1 alone is the run itself), "
+            f"got {args.average}"
+        )
     live = {int(r["episode"]): r for r in _read_csv(args.run / "validation.csv")}
-    rows = write_averaged_run(args.run, args.average, args.out)
+    rows = write_averaged_run(args.run, args.average, args.out, args.select_by)
     print("| episode | success, own policy | success, averaged | reward, own | reward, averaged |")
     print("|---:|---:|---:|---:|---:|")
     for row in rows:

@@ -42,6 +42,10 @@ class TrainConfig:
             policies of the last ``policy_average`` validations instead of the current policy
             (1: the current one). Training never sees it (``crowdplan.training.policy_average``;
             docs/training.md, section 6).
+        select_by: what best-model selection maximises over the validations: ``reward``, the
+            mean validation reward (CrowdNav's rule), or ``success``, the success rate first and
+            the mean reward among equal rates (the reward alone can prefer a faster policy with
+            fewer successes: docs/training.md, section 9).
         checkpoint_interval: episodes between checkpoints.
         log_interval: episodes between progress lines and update-statistics rows.
         test_episodes: test cases evaluated at the end (0 skips the final test).
@@ -63,6 +67,7 @@ class TrainConfig:
     val_humans: int | None = None
     keep_validation_models: bool = False
     policy_average: int = spec(1, low=1)
+    select_by: str = spec("reward", choices=("reward", "success"))
     checkpoint_interval: int = spec(250, low=1)
     log_interval: int = spec(50, low=1)
     test_episodes: int = spec(500, low=0, high=500)

@@ -11,7 +11,7 @@ A run folder holds:
     curves.png           training and validation reward / success curves
     tb/                  TensorBoard logs of the same curves
     checkpoint.pt        everything needed to resume exactly (written atomically)
-    best_model.pt        validated policy with the best validation reward so far
+    best_model.pt        validated policy with the best validation reward (or success) so far
     final_model.pt       the agent's own policy at the end
     validation_models/   with keep_validation_models: the policy of every validation
     test/                summary.json + episodes.jsonl of the test cases (best model)
@@ -111,7 +111,7 @@ class Trainer:
         self.ep_steps = np.zeros(e, dtype=np.int64)
         self.env_steps = 0
         self.logs = RunLogs(self.run_dir)
-        self.best_val_reward = -math.inf
+        self.best_val_score: tuple[float, ...] | None = None
         self.recent_policies: list[dict[str, Any]] = []  # model files of the last validations
         self.train_seconds = 0.0
         self.pretrain_seconds: float | None = None
@@ -175,7 +175,7 @@ class Trainer:
     # -------------------------------------------------------------- validation / logs
     def validate(self) -> dict:
         """Greedy policy on the validation cases (with ``policy_average`` > 1, the average of
-        the last validations' policies); keeps the best model by mean reward."""
+        the last validations' policies); keeps the best model by :func:`selection_score`."""
         payload = self.agent.model_payload(self._model_info())
         if self.config.policy_average == 1:
             policy = self.agent.policy(self.config.name)
@@ -191,8 +191,9 @@ class Trainer:
             path = self.run_dir / "validation_models" / f"episode-{row['episode']:06d}.pt"
             path.parent.mkdir(exist_ok=True)
             torch_save_atomic(path, _with_info(payload, success_rate=row["success_rate"]))
-        if row["mean_reward"] > self.best_val_reward:
-            self.best_val_reward = row["mean_reward"]
+        score = selection_score(row, self.config.select_by)
+        if self.best_val_score is None or score > self.best_val_score:
+            self.best_val_score = score
             torch_save_atomic(
                 self.run_dir / "best_model.pt",
                 _with_info(payload, selected_at_episode=row["episode"]),
@@ -280,7 +281,7 @@ class Trainer:
             "accumulators": (self.ep_return, self.ep_discounted, self.ep_steps),
             "counters": {
                 "env_steps": self.env_steps,
-                "best_val_reward": self.best_val_reward,
+                "best_val_score": self.best_val_score,
                 "train_seconds": self.train_seconds,
                 "pretrain_seconds": self.pretrain_seconds,
                 "pretrain_stats": self.pretrain_stats,
@@ -324,7 +325,7 @@ class Trainer:
         self.ep_return, self.ep_discounted, self.ep_steps = state["accumulators"]
         c = state["counters"]
         self.env_steps = c["env_steps"]
-        self.best_val_reward = c["best_val_reward"]
+        self.best_val_score = _best_val_score(c)
         self.train_seconds = c["train_seconds"]
         self.pretrain_seconds = c.get("pretrain_seconds")
         self.pretrain_stats = c.get("pretrain_stats")
@@ -452,6 +453,22 @@ def validation_row(
         "env_steps": env_steps,
         **{k: summary[k]["value"] for k in VALIDATION_METRICS},
     }
+
+
+def selection_score(row: dict[str, Any], select_by: str) -> tuple[float, ...]:
+    """What best-model selection maximises for a validation ``row``: ``(mean_reward,)``, or
+    with ``select_by == "success"`` ``(success_rate, mean_reward)``; the first of equals wins."""
+    reward = float(row["mean_reward"])
+    return (float(row["success_rate"]), reward) if select_by == "success" else (reward,)
+
+
+def _best_val_score(counters: dict[str, Any]) -> tuple[float, ...] | None:
+    """The best selection score of a checkpoint; older checkpoints kept the reward alone."""
+    if "best_val_score" in counters:
+        score = counters["best_val_score"]
+        return None if score is None else tuple(score)
+    reward = counters["best_val_reward"]
+    return None if reward == -math.inf else (reward,)
 
 
 def _with_info(payload: dict[str, Any], **extra: Any) -> dict[str, Any]:
