@@ -33,8 +33,8 @@ bench: setup
 	$(PY) benchmarks/bench_update.py
 
 # Copy the small artefacts of a training run into results/ (for a DSAC run with a checkpoint also
-# its last networks, which dsac.init_networks can start another run from) and test its best model on the 500
-# circle_crossing and the 500 square_crossing (transfer) test cases:
+# its last networks, which dsac.init_networks can start another run from) and test its best
+# model on the 500 circle_crossing and the 500 square_crossing (transfer) test cases:
 #   make publish RUN=runs/lsa_dsac-s0
 # EVAL_ARGS go to both evaluations, e.g. EVAL_ARGS="--humans 5" for CADRL, which trains with one
 # human and is tested, as in the paper, with five.

@@ -11,7 +11,7 @@ from crowdplan.analysis.averaged_validation import main as averaged_validation
 from crowdplan.cli import main
 from crowdplan.models import load_payload
 from crowdplan.training import config_from_dict
-from crowdplan.training.loop import _best_val_score, selection_score
+from crowdplan.training.loop import _best_val_score, improves, selection_score
 from tests.test_policy_average import TINY, _csv
 
 ROWS = [
@@ -25,7 +25,7 @@ def _selected(select_by: str) -> int:
     best, best_score = None, None
     for row in ROWS:
         score = selection_score(row, select_by)
-        if best_score is None or score > best_score:
+        if improves(score, best_score):
             best, best_score = row["episode"], score
     return best
 

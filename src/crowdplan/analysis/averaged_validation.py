@@ -33,7 +33,7 @@ from crowdplan.io import atomic_write, write_json
 from crowdplan.models import load_payload
 from crowdplan.training.checkpoint import torch_save_atomic
 from crowdplan.training.config import TrainConfig, load_config
-from crowdplan.training.loop import selection_score, validation_row
+from crowdplan.training.loop import improves, selection_score, validation_row
 from crowdplan.training.policy_average import average_payloads, payload_policy
 from crowdplan.training.run_logs import write_csv
 
@@ -67,7 +67,7 @@ def replay(
         row = validation_row(payload_policy(averaged, config.name), config, episode, steps[episode])
         rows.append(row)
         score = selection_score(row, config.select_by)
-        if best_score is None or score > best_score:
+        if improves(score, best_score):
             best_score = score
             best = {**averaged, "info": {**averaged["info"], "selected_at_episode": episode}}
     return rows, best
@@ -80,13 +80,13 @@ def write_averaged_run(
     made, in ``out`` (new or empty)."""
     if out.exists() and any(out.iterdir()):
         raise ValueError(f"{out} is not empty; give a new folder so that nothing is overwritten")
+    saved = load_config(run / "config.yaml", legacy_defaults=True)
     config = dataclasses.replace(
-        load_config(run / "config.yaml", legacy_defaults=True),
+        saved,
         policy_average=average,
         keep_validation_models=False,
+        select_by=select_by or saved.select_by,
     )
-    if select_by is not None:
-        config = dataclasses.replace(config, select_by=select_by)
     rows, best = replay(run, average, config)
     out.mkdir(parents=True, exist_ok=True)
     for name in ("episodes.csv", "updates.csv"):

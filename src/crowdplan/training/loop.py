@@ -192,7 +192,7 @@ class Trainer:
             path.parent.mkdir(exist_ok=True)
             torch_save_atomic(path, _with_info(payload, success_rate=row["success_rate"]))
         score = selection_score(row, self.config.select_by)
-        if self.best_val_score is None or score > self.best_val_score:
+        if improves(score, self.best_val_score):
             self.best_val_score = score
             torch_save_atomic(
                 self.run_dir / "best_model.pt",
@@ -460,6 +460,12 @@ def selection_score(row: dict[str, Any], select_by: str) -> tuple[float, ...]:
     with ``select_by == "success"`` ``(success_rate, mean_reward)``; the first of equals wins."""
     reward = float(row["mean_reward"])
     return (float(row["success_rate"]), reward) if select_by == "success" else (reward,)
+
+
+def improves(score: tuple[float, ...], best: tuple[float, ...] | None) -> bool:
+    """Whether a validation's selection ``score`` replaces the ``best`` so far (None: none yet);
+    equals do not, so the first of them stays."""
+    return best is None or score > best
 
 
 def _best_val_score(counters: dict[str, Any]) -> tuple[float, ...] | None:
