@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from crowdplan.analysis import timeouts
-from crowdplan.analysis.timeouts import ending, summary_row, timeout_endings
+from crowdplan.analysis.timeouts import ending, stops_when_moving, summary_row, timeout_endings
 from crowdplan.evaluation import EpisodeRecord, Trace
+from crowdplan.policy import PolicyOutput
 
 DT = 0.25
 STEPS = 100  # a 25 s episode
@@ -85,10 +86,57 @@ def test_a_model_without_timeouts_gets_dashes():
     assert set(row[4:]) == {"-"}
 
 
+class _StopsWhenStill:
+    """Discrete planner that stops exactly when the robot it observes stands still; records what
+    it saw."""
+
+    name = "stops-when-still"
+
+    def act(self, robot, humans, mask):
+        self.seen = (robot, humans, mask)
+        still = np.hypot(robot[:, 2], robot[:, 3]) < 1e-9
+        return PolicyOutput(np.where(still, 0, 5))
+
+
+class _AlwaysStops:
+    """Velocity-command planner that always commands zero velocity."""
+
+    name = "always-stops"
+
+    def act(self, robot, humans, mask):
+        return PolicyOutput(np.zeros((len(robot), 2)))
+
+
+def test_the_stop_probe_tells_a_fixed_point_of_standing_still_from_a_stop_for_the_scene():
+    frozen = _trace(np.full(STEPS + 1, -1.0))
+    standing = _StopsWhenStill()
+    assert not stops_when_moving(standing, frozen, v_pref=1.0)
+    robot, humans, mask = standing.seen
+    # the robot at its last position, moving at 1 m/s straight to the goal at (0, 4)
+    np.testing.assert_allclose(robot[0, :4], [0.0, -1.0, 0.0, 1.0])
+    np.testing.assert_allclose(humans[0], [[3.0, 0.0, 0.0, 0.0, 0.3]])
+    assert mask.tolist() == [[True]]
+    assert stops_when_moving(_AlwaysStops(), frozen, v_pref=1.0)
+
+
+def test_the_stop_probe_column_is_the_share_of_frozen_timeouts_that_stop():
+    records = [_record(1, "timeout", _trace(np.full(STEPS + 1, -4.0)))]
+    assert summary_row("m", records, [True, False])[-1] == "0.50"
+    assert summary_row("m", [_record(2, "goal", None)], [])[-1] == "-"
+    assert len(summary_row("m", records, [True])) == len(summary_row("m", records)) + 1
+
+
 def test_cli_replays_the_shipped_cadrl_on_square_cases(capsys):
     timeouts.main(["cadrl", "--episodes", "2"])
     out = capsys.readouterr().out
     assert "square_crossing, 5 humans, test cases 0..1" in out
+    assert "| cadrl | 2 |" in out
+
+
+def test_cli_probe_stop_adds_its_column(capsys):
+    timeouts.main(["cadrl", "--episodes", "2", "--probe-stop"])
+    out = capsys.readouterr().out
+    assert "frozen, stops also when moving to the goal |" in out
     assert "| cadrl | 2 |" in out
 
 

@@ -11,9 +11,13 @@ last :data:`WINDOW` seconds of robot positions decide how it ended:
 Beside the split, each row gives the mean distance to the goal at the end, the share of timeouts
 that ended farther from the goal than the robot started (outside every state of a training run
 whose episodes all start at the same distance) and the share that ended with every human at
-rest (speed under :data:`AT_REST`, e.g. arrived at their goals)::
+rest (speed under :data:`AT_REST`, e.g. arrived at their goals). With ``--probe-stop`` a last
+column gives the share of frozen timeouts in which the planner still commands a stop when its
+last state is changed to the robot moving at its preferred speed towards the goal: a robot that
+stops for the scene, not a fixed point of its own zero velocity (which every planner observes)::
 
     python -m crowdplan.analysis.timeouts MODEL... [--scenario square_crossing] [--humans 5]
+        [--probe-stop]
 
 MODEL is anything ``crowdplan eval --model`` takes (a run folder, a model file, a shipped name);
 the episodes are the test cases, replayed with traces.
@@ -32,6 +36,7 @@ import torch
 from crowdplan.config import WorldConfig
 from crowdplan.evaluation import TEST_CASES, EpisodeRecord, Trace, run_episodes, test_seeds
 from crowdplan.models import load_model_policy
+from crowdplan.policy import Policy
 
 WINDOW = 5.0  # s
 STILL = 0.1  # m travelled in the window
@@ -75,6 +80,28 @@ def ending(trace: Trace) -> Ending:
     return Ending(kind, goal_distance, goal_distance > start_distance, at_rest)
 
 
+def stops_when_moving(policy: Policy, trace: Trace, v_pref: float) -> bool:
+    """Whether ``policy`` commands a stop at the trace's last state with the robot's velocity
+    replaced by ``v_pref`` towards its goal (a unicycle also heading there).
+
+    A stop is action 0 of the discrete table or a velocity command slower than 1e-6 m/s.
+    """
+    position, goal = trace.robot_pos[-1], trace.robot_goal
+    direction = (goal - position) / max(float(np.linalg.norm(goal - position)), 1e-9)
+    heading = float(np.arctan2(direction[1], direction[0]))
+    robot = np.array([*position, *(v_pref * direction), trace.robot_radius, *goal, v_pref, heading])
+    if trace.human_vel is None:
+        raise ValueError("the trace has no human velocities: run it with record_traces=True")
+    humans = np.concatenate(
+        [trace.human_pos[-1], trace.human_vel[-1], trace.human_radius[:, None]], axis=1
+    )
+    present = np.ones(len(humans), bool) if trace.human_present is None else trace.human_present[-1]
+    action = np.asarray(policy.act(robot[None], humans[None], present[None]).actions)[0]
+    if action.ndim == 0:
+        return int(action) == 0
+    return float(np.linalg.norm(action)) < 1e-6
+
+
 def timeout_endings(records: list[EpisodeRecord]) -> list[Ending]:
     """The endings of the records that timed out (each must carry its trace)."""
     endings = []
@@ -87,20 +114,24 @@ def timeout_endings(records: list[EpisodeRecord]) -> list[Ending]:
     return endings
 
 
-def summary_row(name: str, records: list[EpisodeRecord]) -> list[str]:
-    """One table row: outcomes of the episodes and how their timeouts ended."""
+def summary_row(
+    name: str, records: list[EpisodeRecord], stop_probe: list[bool] | None = None
+) -> list[str]:
+    """One table row: outcomes of the episodes and how their timeouts ended; with
+    ``stop_probe`` (:func:`stops_when_moving` of each frozen timeout) a last column, its mean."""
     n = len(records)
     outcomes = Counter(r.outcome for r in records)
     endings = timeout_endings(records)
     kinds = Counter(e.kind for e in endings)
     row = [name, str(n), f"{outcomes['goal'] / n:.3f}", f"{outcomes['timeout'] / n:.3f}"]
+    probe = [] if stop_probe is None else [f"{np.mean(stop_probe):.2f}" if stop_probe else "-"]
     if not endings:
-        return row + ["-"] * (len(ENDINGS) + 3)
+        return row + ["-"] * (len(ENDINGS) + 3) + probe
     row += [f"{kinds[k] / len(endings):.2f}" for k in ENDINGS]
     row.append(f"{np.mean([e.goal_distance for e in endings]):.2f}")
     row.append(f"{np.mean([e.beyond_start for e in endings]):.2f}")
     row.append(f"{np.mean([e.crowd_at_rest for e in endings]):.2f}")
-    return row
+    return row + probe
 
 
 HEADER = [
@@ -123,6 +154,11 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--humans", type=int, default=5, help="humans in the test world")
     parser.add_argument("--episodes", type=int, default=500, help="test cases 0..N-1")
+    parser.add_argument(
+        "--probe-stop",
+        action="store_true",
+        help="add the share of frozen timeouts that still stop with the robot moving to its goal",
+    )
     args = parser.parse_args(argv)
     if not 1 <= args.episodes <= TEST_CASES:
         parser.error(f"--episodes must be in 1..{TEST_CASES}, got {args.episodes}")
@@ -134,12 +170,23 @@ def main(argv: list[str] | None = None) -> None:
     except (FileNotFoundError, ValueError) as error:
         parser.error(str(error))
     print(f"{args.scenario}, {args.humans} humans, test cases 0..{args.episodes - 1}\n")
-    print("| " + " | ".join(HEADER) + " |")
-    print("|" + "---|" * len(HEADER))
+    header = HEADER + (["frozen, stops also when moving to the goal"] if args.probe_stop else [])
+    print("| " + " | ".join(header) + " |")
+    print("|" + "---|" * len(header))
     for model, (policy, world) in zip(args.models, loaded, strict=True):
         config: WorldConfig = dataclasses.replace(world, scenario=args.scenario, humans=args.humans)
         records = run_episodes(policy, config, test_seeds(args.episodes), record_traces=True)
-        print("| " + " | ".join(summary_row(model, records)) + " |", flush=True)
+        probe = None
+        if args.probe_stop:
+            frozen = [
+                r.trace
+                for r in records
+                if r.outcome == "timeout"
+                and r.trace is not None
+                and ending(r.trace).kind == "frozen"
+            ]
+            probe = [stops_when_moving(policy, t, config.robot_v_pref) for t in frozen]
+        print("| " + " | ".join(summary_row(model, records, probe)) + " |", flush=True)
 
 
 if __name__ == "__main__":
