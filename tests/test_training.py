@@ -203,6 +203,11 @@ def test_shipped_presets_load():
         assert variant.encoder.name == name
         same = dataclasses.replace(variant, name=avg.name, encoder=avg.encoder)
         assert same == avg
+    # the same preset with a temperature floor and nothing else
+    amin = load_config("configs/lsa_dsac_aln_avg_amin.yaml")
+    floored = dataclasses.replace(avg.algo_config, alpha_min=1e-4)
+    assert amin.algo_config == floored
+    assert dataclasses.replace(amin, name=avg.name, algo_config=avg.algo_config) == avg
     # the discount read as 0.95 per second of travel: 0.95 ** (dt * v_pref) per step
     config = load_config("configs/lsa_dsac_ent05_gsec.yaml")
     per_second = 0.95 ** (config.world.dt * config.world.robot_v_pref)
