@@ -86,12 +86,12 @@ def stops_when_moving(policy: Policy, trace: Trace, v_pref: float) -> bool:
 
     A stop is action 0 of the discrete table or a velocity command slower than 1e-6 m/s.
     """
+    if trace.human_vel is None:
+        raise ValueError("the trace has no human velocities: run it with record_traces=True")
     position, goal = trace.robot_pos[-1], trace.robot_goal
     direction = (goal - position) / max(float(np.linalg.norm(goal - position)), 1e-9)
     heading = float(np.arctan2(direction[1], direction[0]))
     robot = np.array([*position, *(v_pref * direction), trace.robot_radius, *goal, v_pref, heading])
-    if trace.human_vel is None:
-        raise ValueError("the trace has no human velocities: run it with record_traces=True")
     humans = np.concatenate(
         [trace.human_pos[-1], trace.human_vel[-1], trace.human_radius[:, None]], axis=1
     )
