@@ -114,6 +114,12 @@ def timeout_endings(records: list[EpisodeRecord]) -> list[Ending]:
     return endings
 
 
+def frozen(records: list[EpisodeRecord]) -> list[Trace]:
+    """The traces of the timeouts among ``records`` that ended frozen."""
+    traces = [r.trace for r in records if r.outcome == "timeout" and r.trace is not None]
+    return [t for t, e in zip(traces, timeout_endings(records), strict=True) if e.kind == "frozen"]
+
+
 def summary_row(
     name: str, records: list[EpisodeRecord], stop_probe: list[bool] | None = None
 ) -> list[str]:
@@ -178,14 +184,7 @@ def main(argv: list[str] | None = None) -> None:
         records = run_episodes(policy, config, test_seeds(args.episodes), record_traces=True)
         probe = None
         if args.probe_stop:
-            frozen = [
-                r.trace
-                for r in records
-                if r.outcome == "timeout"
-                and r.trace is not None
-                and ending(r.trace).kind == "frozen"
-            ]
-            probe = [stops_when_moving(policy, t, config.robot_v_pref) for t in frozen]
+            probe = [stops_when_moving(policy, t, config.robot_v_pref) for t in frozen(records)]
         print("| " + " | ".join(summary_row(model, records, probe)) + " |", flush=True)
 
 
