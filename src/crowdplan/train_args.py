@@ -47,6 +47,14 @@ def add_train_args(parser: argparse.ArgumentParser) -> None:
         "(default: the config's keep_validation_models)",
     )
     parser.add_argument(
+        "--keep-validation-networks",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="DSAC only: also write the actor, critics and temperature of every validation to "
+        "validation_networks/, for python -m crowdplan.analysis.frozen_critic; may change on "
+        "--resume (default: the config's keep_validation_networks)",
+    )
+    parser.add_argument(
         "--policy-average",
         type=int,
         default=None,

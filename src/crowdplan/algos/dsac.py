@@ -416,7 +416,7 @@ class DSAC:
         min_qf_values: Future[Tensor],
     ) -> tuple[Tensor, ...]:
         """Soft target, twin-critic loss, backward and step; hands the twin estimate of Q(s, .)
-        (:meth:`_twin_q`) to the policy step through ``min_qf_values`` as soon as the critic's
+        (:meth:`twin_q`) to the policy step through ``min_qf_values`` as soon as the critic's
         forward pass has it."""
         self.critic_optimizer.zero_grad(set_to_none=True)
         try:
@@ -430,12 +430,12 @@ class DSAC:
                 else:
                     qf1_next_target, qf2_next_target = self.critic_target(*next_obs)
             qf1_values, qf2_values = self.critic(*obs)
-            min_qf_values.set_result(self._twin_q(qf1_values, qf2_values).detach())
+            min_qf_values.set_result(self.twin_q(qf1_values, qf2_values).detach())
             with torch.no_grad():
                 next_pi, next_log_pi = next_policy.result()
                 # soft state value: exact expectation over the actions (a sum, not a mean)
                 min_qf_next_target = (
-                    next_pi * (self._twin_q(qf1_next_target, qf2_next_target) - alpha * next_log_pi)
+                    next_pi * (self.twin_q(qf1_next_target, qf2_next_target) - alpha * next_log_pi)
                 ).sum(dim=1)
                 # dones are terminations only; truncated (timeout) transitions bootstrap
                 next_q_value = rewards + self.config.gamma * (1.0 - dones) * min_qf_next_target
@@ -460,7 +460,7 @@ class DSAC:
             self._step_critic()
         return qf1_loss.detach(), qf2_loss.detach(), qf_loss.detach(), qf1_a_values.mean().detach()
 
-    def _twin_q(self, q1: Tensor, q2: Tensor) -> Tensor:
+    def twin_q(self, q1: Tensor, q2: Tensor) -> Tensor:
         """The twin critics' joint estimate: their minimum, or their mean with ``average_q``."""
         return (q1 + q2) * 0.5 if self.config.average_q else torch.min(q1, q2)
 

@@ -14,7 +14,7 @@ import torch
 from crowdplan.algos.base import Observation, StepFeatures, Transitions
 from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.dsac import DSAC
-from crowdplan.algos.dsac_networks import initial_networks
+from crowdplan.algos.dsac_networks import initial_networks, networks_payload
 from crowdplan.algos.imitation import collect_demonstrations, demonstration_seeds, fit_actions
 from crowdplan.config import to_dict
 from crowdplan.models import MODEL_FORMAT, DSACPolicy, model_payload
@@ -131,6 +131,11 @@ class DSACAgent:
         return model_payload(
             self.core.actor, self.config.encoder, self.params, self.config.world, info
         )
+
+    def networks_payload(self) -> dict[str, Any]:
+        """The networks and temperature now, as a networks file holds them
+        (:mod:`crowdplan.algos.dsac_networks`)."""
+        return networks_payload(self.config.to_dict(), self.core.state_dict())
 
     def state_dict(self) -> dict[str, Any]:
         return {

@@ -23,7 +23,7 @@ NETWORK_KEYS = ("actor", "critic", "critic_target", "log_alpha")
 NETWORKS_FORMAT = "crowdplan-dsac-networks/1"
 
 
-def _dsac_networks(state: dict[str, Any], path: Path) -> dict[str, Any]:
+def networks_of(state: dict[str, Any], path: Path) -> dict[str, Any]:
     """The networks and temperature of a loaded checkpoint or networks file."""
     if state.get("format") == NETWORKS_FORMAT:
         return state["networks"]
@@ -33,16 +33,20 @@ def _dsac_networks(state: dict[str, Any], path: Path) -> dict[str, Any]:
     return {key: dsac[key] for key in NETWORK_KEYS}
 
 
+def networks_payload(config: dict[str, Any], dsac_state: dict[str, Any]) -> dict[str, Any]:
+    """A networks file's content: the run's config (plain data) and, of a DSAC state dict
+    (:meth:`crowdplan.algos.dsac.DSAC.state_dict`), the networks and temperature."""
+    networks = {key: dsac_state[key] for key in NETWORK_KEYS}
+    return {"format": NETWORKS_FORMAT, "config": config, "networks": networks}
+
+
 def save_networks(checkpoint: Path, out: Path) -> None:
     """Write the DSAC networks and temperature of a training checkpoint, with the run's config,
     to ``out``."""
     from crowdplan.training.checkpoint import read_checkpoint, torch_save_atomic
 
     state = read_checkpoint(checkpoint)
-    networks = _dsac_networks(state, checkpoint)
-    torch_save_atomic(
-        out, {"format": NETWORKS_FORMAT, "config": state["config"], "networks": networks}
-    )
+    torch_save_atomic(out, networks_payload(state["config"], networks_of(state, checkpoint)))
 
 
 def initial_networks(config: TrainConfig) -> dict[str, Any]:
@@ -58,7 +62,7 @@ def initial_networks(config: TrainConfig) -> dict[str, Any]:
             "written by python -m crowdplan.algos.dsac_networks"
         )
     state = read_checkpoint(path, also=(NETWORKS_FORMAT,))
-    networks, saved = _dsac_networks(state, path), state["config"]
+    networks, saved = networks_of(state, path), state["config"]
     encoder = saved.get("encoder")
     if encoder != to_dict(config.encoder):
         raise ValueError(

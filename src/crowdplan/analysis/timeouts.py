@@ -80,23 +80,36 @@ def ending(trace: Trace) -> Ending:
     return Ending(kind, goal_distance, goal_distance > start_distance, at_rest)
 
 
+def last_state(
+    trace: Trace, v_pref: float, moving: bool = False, holonomic: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The observation ``(robot (1, 9), humans (1, N, 5), present (1, N))`` of the trace's last
+    state. The robot keeps its last velocity, or with ``moving`` goes at ``v_pref`` straight to
+    its goal. Its heading: towards the goal when ``moving`` or for a unicycle (whose heading the
+    trace does not keep), else the holonomic robot's fixed heading, start to goal, as the world
+    keeps it."""
+    if trace.human_vel is None:
+        raise ValueError("the trace has no human velocities: run it with record_traces=True")
+    position, goal = trace.robot_pos[-1], trace.robot_goal
+    direction = (goal - position) / max(float(np.linalg.norm(goal - position)), 1e-9)
+    velocity = v_pref * direction if moving else trace.robot_vel[-1]
+    towards = direction if moving or not holonomic else goal - trace.robot_pos[0]
+    heading = float(np.arctan2(towards[1], towards[0]))
+    robot = np.array([*position, *velocity, trace.robot_radius, *goal, v_pref, heading])
+    humans = np.concatenate(
+        [trace.human_pos[-1], trace.human_vel[-1], trace.human_radius[:, None]], axis=1
+    )
+    present = np.ones(len(humans), bool) if trace.human_present is None else trace.human_present[-1]
+    return robot[None], humans[None], present[None]
+
+
 def stops_when_moving(policy: Policy, trace: Trace, v_pref: float) -> bool:
     """Whether ``policy`` commands a stop at the trace's last state with the robot's velocity
     replaced by ``v_pref`` towards its goal (a unicycle also heading there).
 
     A stop is action 0 of the discrete table or a velocity command slower than 1e-6 m/s.
     """
-    if trace.human_vel is None:
-        raise ValueError("the trace has no human velocities: run it with record_traces=True")
-    position, goal = trace.robot_pos[-1], trace.robot_goal
-    direction = (goal - position) / max(float(np.linalg.norm(goal - position)), 1e-9)
-    heading = float(np.arctan2(direction[1], direction[0]))
-    robot = np.array([*position, *(v_pref * direction), trace.robot_radius, *goal, v_pref, heading])
-    humans = np.concatenate(
-        [trace.human_pos[-1], trace.human_vel[-1], trace.human_radius[:, None]], axis=1
-    )
-    present = np.ones(len(humans), bool) if trace.human_present is None else trace.human_present[-1]
-    action = np.asarray(policy.act(robot[None], humans[None], present[None]).actions)[0]
+    action = np.asarray(policy.act(*last_state(trace, v_pref, moving=True)).actions)[0]
     if action.ndim == 0:
         return int(action) == 0
     return float(np.linalg.norm(action)) < 1e-6

@@ -46,6 +46,12 @@ _FLAGS = (
         "keep_validation_models",
         on_resume=True,
     ),
+    _Flag(
+        "--[no-]keep-validation-networks",
+        "keep_validation_networks",
+        "keep_validation_networks",
+        on_resume=True,
+    ),
     _Flag("--policy-average", "policy_average", "policy_average", on_resume=True),
     _Flag(
         "--[no-]parallel-update",

@@ -38,6 +38,11 @@ class TrainConfig:
         keep_validation_models: also write each validation's greedy policy to
             ``validation_models/episode-NNNNNN.pt`` (for ``crowdplan.analysis.argmax_flips``;
             about 0.4 MB each for LSA-DSAC).
+        keep_validation_networks: DSAC only: also write the networks and temperature at each
+            validation to ``validation_networks/episode-NNNNNN.pt`` (the format of
+            ``crowdplan.algos.dsac_networks``, about 1.5 MB each for LSA-DSAC), to read the
+            critic where a kept policy fails (``crowdplan.analysis.frozen_critic``) or to start
+            a run from that point (``dsac.init_networks``).
         policy_average: validate, keep as best model and test the mean of the weights of the
             policies of the last ``policy_average`` validations instead of the current policy
             (1: the current one). Training never sees it (``crowdplan.training.policy_average``;
@@ -66,6 +71,7 @@ class TrainConfig:
     val_episodes: int = spec(100, low=1, high=100)
     val_humans: int | None = None
     keep_validation_models: bool = False
+    keep_validation_networks: bool = False
     policy_average: int = spec(1, low=1)
     select_by: str = spec("reward", choices=("reward", "success"))
     checkpoint_interval: int = spec(250, low=1)
@@ -86,6 +92,11 @@ class TrainConfig:
             raise ValueError(
                 f"val_humans must be >= 0 (or left out for the training world's count), "
                 f"got {self.val_humans}"
+            )
+        if self.keep_validation_networks and self.algo != "dsac":
+            raise ValueError(
+                f"keep_validation_networks keeps DSAC's critic beside each validated policy; "
+                f"a {self.algo} run's model files (keep_validation_models) hold all it acts with"
             )
         if not isinstance(self.algo_config, algo.config_class):
             raise ValueError(

@@ -14,6 +14,7 @@ A run folder holds:
     best_model.pt        validated policy with the best validation reward (or success) so far
     final_model.pt       the agent's own policy at the end
     validation_models/   with keep_validation_models: the policy of every validation
+    validation_networks/ with keep_validation_networks (DSAC): its networks at every validation
     test/                summary.json + episodes.jsonl of the test cases (best model)
 """
 
@@ -66,6 +67,7 @@ RESUME_MUTABLE = (
     "val_interval",
     "val_humans",
     "keep_validation_models",
+    "keep_validation_networks",
     "policy_average",
 )
 
@@ -191,6 +193,10 @@ class Trainer:
             path = self.run_dir / "validation_models" / f"episode-{row['episode']:06d}.pt"
             path.parent.mkdir(exist_ok=True)
             torch_save_atomic(path, _with_info(payload, success_rate=row["success_rate"]))
+        if self.config.keep_validation_networks:
+            path = self.run_dir / "validation_networks" / f"episode-{row['episode']:06d}.pt"
+            path.parent.mkdir(exist_ok=True)
+            torch_save_atomic(path, self.agent.networks_payload())
         score = selection_score(row, self.config.select_by)
         if improves(score, self.best_val_score):
             self.best_val_score = score
