@@ -39,8 +39,13 @@ import torch
 from crowdplan.algos.dsac import DSAC
 from crowdplan.algos.dsac_networks import NETWORKS_FORMAT, networks_of
 from crowdplan.analysis.argmax_flips import probe_states
-from crowdplan.analysis.timeouts import frozen, last_state
-from crowdplan.evaluation import TEST_CASES, Trace, run_episodes, test_seeds
+from crowdplan.analysis.timeouts import (
+    add_test_case_args,
+    check_test_case_args,
+    frozen,
+    last_state,
+)
+from crowdplan.evaluation import Trace, run_episodes, test_seeds
 from crowdplan.features import robot_centric
 from crowdplan.models import DSACPolicy
 from crowdplan.training.checkpoint import read_checkpoint
@@ -139,16 +144,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "networks", nargs="+", type=Path, help="DSAC networks files or training checkpoints"
     )
-    parser.add_argument(
-        "--scenario", default="circle_crossing", choices=("circle_crossing", "square_crossing")
-    )
-    parser.add_argument("--humans", type=int, default=5, help="humans in the test world")
-    parser.add_argument("--episodes", type=int, default=500, help="test cases 0..N-1")
+    add_test_case_args(parser, scenario="circle_crossing")
     args = parser.parse_args(argv)
-    if not 1 <= args.episodes <= TEST_CASES:
-        parser.error(f"--episodes must be in 1..{TEST_CASES}, got {args.episodes}")
-    if args.humans < 0:
-        parser.error(f"--humans must be >= 0, got {args.humans}")
+    check_test_case_args(parser, args)
     torch.set_num_threads(1)
     try:  # every file loads before the first episode runs
         loaded = [load_networks(path) for path in args.networks]

@@ -165,24 +165,34 @@ HEADER = [
 ]
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("models", nargs="+", help="run folders, model files or shipped names")
+def add_test_case_args(parser: argparse.ArgumentParser, scenario: str) -> None:
+    """``--scenario``, ``--humans`` and ``--episodes``: the test cases a replay plays."""
     parser.add_argument(
-        "--scenario", default="square_crossing", choices=("circle_crossing", "square_crossing")
+        "--scenario", default=scenario, choices=("circle_crossing", "square_crossing")
     )
     parser.add_argument("--humans", type=int, default=5, help="humans in the test world")
     parser.add_argument("--episodes", type=int, default=500, help="test cases 0..N-1")
+
+
+def check_test_case_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Refuse, through ``parser``, test-case arguments outside their ranges."""
+    if not 1 <= args.episodes <= TEST_CASES:
+        parser.error(f"--episodes must be in 1..{TEST_CASES}, got {args.episodes}")
+    if args.humans < 0:
+        parser.error(f"--humans must be >= 0, got {args.humans}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("models", nargs="+", help="run folders, model files or shipped names")
+    add_test_case_args(parser, scenario="square_crossing")
     parser.add_argument(
         "--probe-stop",
         action="store_true",
         help="add the share of frozen timeouts that still stop with the robot moving to its goal",
     )
     args = parser.parse_args(argv)
-    if not 1 <= args.episodes <= TEST_CASES:
-        parser.error(f"--episodes must be in 1..{TEST_CASES}, got {args.episodes}")
-    if args.humans < 0:
-        parser.error(f"--humans must be >= 0, got {args.humans}")
+    check_test_case_args(parser, args)
     torch.set_num_threads(1)
     try:  # every model loads before the first episode runs
         loaded = [load_model_policy(model) for model in args.models]
