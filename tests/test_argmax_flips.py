@@ -67,7 +67,8 @@ def test_identical_snapshots_do_not_flip_and_different_ones_are_counted(snapshot
     assert math.isnan(rows[0]["flipped"]) and rows[1]["flipped"] == 0.0
     assert rows[0]["p_greedy"] == rows[1]["p_greedy"]
     assert rows[2]["changed_from_final"] == 0.0 and rows[2]["p_greedy"] == 1.0
-    assert rows[2]["narrow"] == 0.0
+    assert rows[2]["narrow"] == 0.0 and rows[2]["stops"] == 1.0
+    assert rows[2]["stop_gap"] > 1e5 and math.isnan(rows[0]["stop_gap"]) == (rows[0]["stops"] == 0)
     assert rows[2]["flipped"] == rows[1]["changed_from_final"]
 
 

@@ -11,7 +11,8 @@ import torch
 import yaml
 
 from crowdplan.algos.dsac_networks import NETWORKS_FORMAT
-from crowdplan.analysis.frozen_critic import STOP, load_networks, main, read_states
+from crowdplan.analysis.argmax_flips import STOP
+from crowdplan.analysis.frozen_critic import load_networks, main, read_states
 from crowdplan.analysis.timeouts import last_state
 from crowdplan.cli import main as crowdplan_main
 from crowdplan.config import WorldConfig

@@ -14,7 +14,14 @@ Per validation it reports:
 - ``p_greedy``: the median probability of the greedy action (a softmax over the policy's
   scores; for DSAC the policy itself);
 - ``narrow``: the fraction of probe states whose two best actions are within a factor of 2 in
-  probability (score gap below log 2): the states where a small change flips the argmax.
+  probability (score gap below log 2): the states where a small change flips the argmax;
+- ``stops``: the fraction of probe states whose greedy action is the stop (action 0). ORCA's
+  robot is on its way to the goal in every probe state, so a policy that stops in many of them
+  has a region of standing still beside its own paths (docs/training.md, section 9);
+- ``stop_gap``: in the probe states where the stop is greedy, the median score gap between it
+  and the runner-up (for DSAC in nats of the policy's log-probabilities): how firmly the policy
+  stops there. DSAC's policy loss moves the runner-up's logit in proportion to its probability,
+  about ``exp(-stop_gap)`` of the stop's.
 
 ::
 
@@ -40,6 +47,7 @@ from crowdplan.models import GreedyPolicy, load_model_policy
 from crowdplan.sim.world import RUNNING, World
 
 SNAPSHOTS = "validation_models"
+STOP = 0  # action index of the stop in the 81-action table
 COLUMNS = (
     "model",
     "episode",
@@ -48,6 +56,8 @@ COLUMNS = (
     "changed_from_final",
     "p_greedy",
     "narrow",
+    "stops",
+    "stop_gap",
 )
 
 
@@ -98,6 +108,7 @@ def flip_table(paths: list[Path], cases: int = 100) -> list[dict[str, float]]:
     rows = []
     for k, s in enumerate(scores):
         top2 = np.sort(s, axis=1)[:, -2:]
+        gaps, stops = top2[:, 1] - top2[:, 0], greedy[k] == STOP
         probs = np.exp(s - s.max(axis=1, keepdims=True))
         probs /= probs.sum(axis=1, keepdims=True)
         rows.append(
@@ -108,7 +119,9 @@ def flip_table(paths: list[Path], cases: int = 100) -> list[dict[str, float]]:
                 "flipped": float(np.mean(greedy[k] != greedy[k - 1])) if k else math.nan,
                 "changed_from_final": float(np.mean(greedy[k] != greedy[-1])),
                 "p_greedy": float(np.median(probs.max(axis=1))),
-                "narrow": float(np.mean(top2[:, 1] - top2[:, 0] < math.log(2))),
+                "narrow": float(np.mean(gaps < math.log(2))),
+                "stops": float(np.mean(stops)),
+                "stop_gap": float(np.median(gaps[stops])) if stops.any() else math.nan,
                 "probe_states": len(s),
             }
         )
@@ -126,7 +139,7 @@ def format_table(rows: list[dict[str, float]]) -> str:
 
 
 def plot(rows: list[dict[str, float]], title: str, path: Path) -> None:
-    """Validation success, flipped fraction and narrow fraction against the episode."""
+    """Validation success and the flipped, narrow and stop fractions against the episode."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -134,7 +147,8 @@ def plot(rows: list[dict[str, float]], title: str, path: Path) -> None:
 
     episodes = [r["episode"] for r in rows]
     fig, ax = plt.subplots(figsize=(8, 3.5))
-    for column, style in (("success_rate", "k-"), ("flipped", "r.-"), ("narrow", "b.--")):
+    styles = (("success_rate", "k-"), ("flipped", "r.-"), ("narrow", "b.--"), ("stops", "g.-"))
+    for column, style in styles:
         ax.plot(episodes, [r[column] for r in rows], style, label=column)
     ax.set_xlabel("training episode")
     ax.set_ylim(-0.02, 1.02)

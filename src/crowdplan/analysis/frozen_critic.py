@@ -38,7 +38,7 @@ import torch
 
 from crowdplan.algos.dsac import DSAC
 from crowdplan.algos.dsac_networks import NETWORKS_FORMAT, networks_of
-from crowdplan.analysis.argmax_flips import probe_states
+from crowdplan.analysis.argmax_flips import STOP, probe_states
 from crowdplan.analysis.timeouts import (
     add_test_case_args,
     check_test_case_args,
@@ -51,7 +51,6 @@ from crowdplan.models import DSACPolicy
 from crowdplan.training.checkpoint import read_checkpoint
 from crowdplan.training.config import TrainConfig, config_from_dict, with_legacy_defaults
 
-STOP = 0  # action index of the stop in the 81-action table
 ORCA_CASES = 100  # validation cases whose ORCA paths give the comparison states
 
 
