@@ -11,13 +11,13 @@ import torch
 import yaml
 
 from crowdplan.algos.dsac_networks import NETWORKS_FORMAT
-from crowdplan.analysis.argmax_flips import STOP
 from crowdplan.analysis.frozen_critic import load_networks, main, read_states
 from crowdplan.analysis.timeouts import last_state
 from crowdplan.cli import main as crowdplan_main
 from crowdplan.config import WorldConfig
 from crowdplan.evaluation import run_episodes
 from crowdplan.policy import PolicyOutput
+from crowdplan.sim.actions import STOP
 from crowdplan.training.checkpoint import read_checkpoint
 from crowdplan.training.config import config_from_dict
 from tests.test_sweep import TINY

@@ -44,10 +44,10 @@ from crowdplan.algos.orca_planner import OrcaPlanner
 from crowdplan.config import WorldConfig
 from crowdplan.io import atomic_write
 from crowdplan.models import GreedyPolicy, load_model_policy
+from crowdplan.sim.actions import STOP
 from crowdplan.sim.world import RUNNING, World
 
 SNAPSHOTS = "validation_models"
-STOP = 0  # action index of the stop in the 81-action table
 COLUMNS = (
     "model",
     "episode",

@@ -38,7 +38,7 @@ import torch
 
 from crowdplan.algos.dsac import DSAC
 from crowdplan.algos.dsac_networks import NETWORKS_FORMAT, networks_of
-from crowdplan.analysis.argmax_flips import STOP, probe_states
+from crowdplan.analysis.argmax_flips import probe_states
 from crowdplan.analysis.timeouts import (
     add_test_case_args,
     check_test_case_args,
@@ -48,6 +48,7 @@ from crowdplan.analysis.timeouts import (
 from crowdplan.evaluation import Trace, run_episodes, test_seeds
 from crowdplan.features import robot_centric
 from crowdplan.models import DSACPolicy
+from crowdplan.sim.actions import STOP
 from crowdplan.training.checkpoint import read_checkpoint
 from crowdplan.training.config import TrainConfig, config_from_dict, with_legacy_defaults
 

@@ -37,6 +37,7 @@ from crowdplan.config import WorldConfig
 from crowdplan.evaluation import TEST_CASES, EpisodeRecord, Trace, run_episodes, test_seeds
 from crowdplan.models import load_model_policy
 from crowdplan.policy import Policy
+from crowdplan.sim.actions import STOP
 
 WINDOW = 5.0  # s
 STILL = 0.1  # m travelled in the window
@@ -107,11 +108,12 @@ def stops_when_moving(policy: Policy, trace: Trace, v_pref: float) -> bool:
     """Whether ``policy`` commands a stop at the trace's last state with the robot's velocity
     replaced by ``v_pref`` towards its goal (a unicycle also heading there).
 
-    A stop is action 0 of the discrete table or a velocity command slower than 1e-6 m/s.
+    A stop is the discrete table's :data:`~crowdplan.sim.actions.STOP` or a velocity command
+    slower than 1e-6 m/s.
     """
     action = np.asarray(policy.act(*last_state(trace, v_pref, moving=True)).actions)[0]
     if action.ndim == 0:
-        return int(action) == 0
+        return int(action) == STOP
     return float(np.linalg.norm(action)) < 1e-6
 
 
@@ -129,7 +131,7 @@ def timeout_endings(records: list[EpisodeRecord]) -> list[Ending]:
 
 def frozen(records: list[EpisodeRecord]) -> list[Trace]:
     """The traces of the timeouts among ``records`` that ended frozen."""
-    traces = [r.trace for r in records if r.outcome == "timeout" and r.trace is not None]
+    traces = [r.trace for r in records if r.outcome == "timeout"]  # each checked below
     return [t for t, e in zip(traces, timeout_endings(records), strict=True) if e.kind == "frozen"]
 
 

@@ -16,6 +16,7 @@ import numpy as np
 N_DIRECTIONS = 16
 N_SPEEDS = 5
 N_ACTIONS = 1 + N_DIRECTIONS * N_SPEEDS
+STOP = 0  # the index of the stop action; the moves follow it
 ACTION_FRAMES = ("goal", "world")
 
 

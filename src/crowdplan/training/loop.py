@@ -190,13 +190,11 @@ class Trainer:
         row = validation_row(policy, self.config, len(self.episodes), self.env_steps)
         self.validations.append(row)
         if self.config.keep_validation_models:
-            path = self.run_dir / "validation_models" / f"episode-{row['episode']:06d}.pt"
-            path.parent.mkdir(exist_ok=True)
-            torch_save_atomic(path, _with_info(payload, success_rate=row["success_rate"]))
+            self._keep(
+                "validation_models", row, _with_info(payload, success_rate=row["success_rate"])
+            )
         if self.config.keep_validation_networks:
-            path = self.run_dir / "validation_networks" / f"episode-{row['episode']:06d}.pt"
-            path.parent.mkdir(exist_ok=True)
-            torch_save_atomic(path, self.agent.networks_payload())
+            self._keep("validation_networks", row, self.agent.networks_payload())
         score = selection_score(row, self.config.select_by)
         if improves(score, self.best_val_score):
             self.best_val_score = score
@@ -205,6 +203,12 @@ class Trainer:
                 _with_info(payload, selected_at_episode=row["episode"]),
             )
         return row
+
+    def _keep(self, folder: str, row: dict, payload: dict[str, Any]) -> None:
+        """Write ``payload`` as ``<folder>/episode-NNNNNN.pt`` of the validation ``row``."""
+        path = self.run_dir / folder / f"episode-{row['episode']:06d}.pt"
+        path.parent.mkdir(exist_ok=True)
+        torch_save_atomic(path, payload)
 
     def _model_info(self) -> dict[str, Any]:
         return {
