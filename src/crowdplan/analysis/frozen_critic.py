@@ -44,6 +44,8 @@ from crowdplan.analysis.timeouts import (
     check_test_case_args,
     frozen,
     last_state,
+    load_each,
+    print_table_head,
 )
 from crowdplan.evaluation import Trace, run_episodes, test_seeds
 from crowdplan.features import robot_centric
@@ -148,13 +150,8 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     check_test_case_args(parser, args)
     torch.set_num_threads(1)
-    try:  # every file loads before the first episode runs
-        loaded = [load_networks(path) for path in args.networks]
-    except (FileNotFoundError, ValueError) as error:
-        parser.error(str(error))
-    print(f"{args.scenario}, {args.humans} humans, test cases 0..{args.episodes - 1}\n")
-    print("| " + " | ".join(HEADER) + " |")
-    print("|" + "---|" * len(HEADER))
+    loaded = load_each(parser, load_networks, args.networks)
+    print_table_head(args, HEADER)
     for path, (core, config) in zip(args.networks, loaded, strict=True):
         world = dataclasses.replace(config.world, scenario=args.scenario, humans=args.humans)
         policy = DSACPolicy(core.actor, world, config.name)

@@ -28,7 +28,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 import torch
@@ -45,6 +47,9 @@ CYCLE_PATH = 1.0  # m travelled in the window
 RETURN = 0.5  # m from the window's first position
 AT_REST = 0.05  # m/s
 ENDINGS = ("frozen", "cycling", "moving")
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 
 @dataclass(frozen=True)
@@ -184,6 +189,22 @@ def check_test_case_args(parser: argparse.ArgumentParser, args: argparse.Namespa
         parser.error(f"--humans must be >= 0, got {args.humans}")
 
 
+def load_each(parser: argparse.ArgumentParser, load: Callable[[T], R], items: list[T]) -> list[R]:
+    """Every item loaded before the first episode runs; a missing or foreign file ends the
+    command through ``parser`` with the loader's message."""
+    try:
+        return [load(item) for item in items]
+    except (FileNotFoundError, ValueError) as error:
+        parser.error(str(error))
+
+
+def print_table_head(args: argparse.Namespace, header: list[str]) -> None:
+    """The line naming a replay's test cases, then its markdown table header."""
+    print(f"{args.scenario}, {args.humans} humans, test cases 0..{args.episodes - 1}\n")
+    print("| " + " | ".join(header) + " |")
+    print("|" + "---|" * len(header))
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("models", nargs="+", help="run folders, model files or shipped names")
@@ -196,14 +217,9 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     check_test_case_args(parser, args)
     torch.set_num_threads(1)
-    try:  # every model loads before the first episode runs
-        loaded = [load_model_policy(model) for model in args.models]
-    except (FileNotFoundError, ValueError) as error:
-        parser.error(str(error))
-    print(f"{args.scenario}, {args.humans} humans, test cases 0..{args.episodes - 1}\n")
+    loaded = load_each(parser, load_model_policy, args.models)
     header = HEADER + (["frozen, stops also when moving to the goal"] if args.probe_stop else [])
-    print("| " + " | ".join(header) + " |")
-    print("|" + "---|" * len(header))
+    print_table_head(args, header)
     for model, (policy, world) in zip(args.models, loaded, strict=True):
         config: WorldConfig = dataclasses.replace(world, scenario=args.scenario, humans=args.humans)
         records = run_episodes(policy, config, test_seeds(args.episodes), record_traces=True)
