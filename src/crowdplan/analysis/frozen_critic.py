@@ -47,6 +47,7 @@ from crowdplan.analysis.timeouts import (
     load_each,
     print_table_head,
 )
+from crowdplan.config import WorldConfig
 from crowdplan.evaluation import Trace, run_episodes, test_seeds
 from crowdplan.features import robot_centric
 from crowdplan.models import DSACPolicy
@@ -100,13 +101,12 @@ def read_states(
 
 
 def frozen_readings(
-    core: DSAC, config: TrainConfig, traces: list[Trace], moving: bool
+    core: DSAC, world: WorldConfig, traces: list[Trace], moving: bool
 ) -> Readings | None:
-    """The readings at the last state of each frozen trace (None without one): as it was, or
-    with the robot moving to its goal."""
+    """The readings at the last state of each frozen trace of ``world`` (None without one): as
+    it was, or with the robot moving to its goal."""
     if not traces:
         return None
-    world = config.world
     holonomic = world.kinematics == "holonomic"
     states = [last_state(t, world.robot_v_pref, moving, holonomic) for t in traces]
     batch = [np.concatenate([s[i] for s in states]) for i in range(3)]
@@ -159,8 +159,8 @@ def main(argv: list[str] | None = None) -> None:
         traces = frozen(records)
         orca_paths = probe_states(world, ORCA_CASES)
         readings = [
-            frozen_readings(core, config, traces, moving=False),
-            frozen_readings(core, config, traces, moving=True),
+            frozen_readings(core, world, traces, moving=False),
+            frozen_readings(core, world, traces, moving=True),
             read_states(core, *orca_paths, unicycle=world.kinematics == "unicycle"),
         ]
         success = np.mean([r.outcome == "goal" for r in records])
