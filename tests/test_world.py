@@ -45,6 +45,24 @@ def test_circle_crossing_rules():
                 assert np.linalg.norm(agents[i] - goals[j]) >= 0.8 - 1e-12
 
 
+def test_circle_radius_follows_crowd_size():
+    # 0-10 humans on a 5 m circle, never smaller than 4 m: the robot starts at -R(n)
+    cfg = WorldConfig(humans=10, humans_min=0, circle_radius=5.0, circle_radius_min=4.0)
+    seen = {}
+    for seed in range(200):
+        init = scenarios.generate(cfg, seed)
+        seen[len(init.human_pos)] = -init.robot_pos[1]
+    assert seen[10] == 5.0
+    assert seen[7] == pytest.approx(5.0 * np.sqrt(0.7))
+    assert all(seen[n] == 4.0 for n in range(7))
+    # without a minimum, or with the full crowd, the scene is the one without the option
+    fixed = WorldConfig(humans=10, circle_radius=5.0)
+    np.testing.assert_array_equal(
+        scenarios.generate(fixed, 3).human_pos,
+        scenarios.generate(fixed.replace(circle_radius_min=4.0), 3).human_pos,
+    )
+
+
 def test_square_crossing_sides():
     cfg = WorldConfig(scenario="square_crossing", humans=5)
     for seed in range(20):
@@ -195,6 +213,11 @@ def test_batched_equals_single():
         ({"kinematics": "car"}, "kinematics must be one of"),
         ({"speed_sampling": "log"}, "speed_sampling must be one of"),
         ({"bogus": 1}, "unknown key(s) ['bogus']"),
+        ({"circle_radius_min": 4.5}, "circle_radius_min must be in (0, circle_radius = 4.0]"),
+        (
+            {"circle_radius_min": 3.0, "respawn_on_arrival": True},
+            "circle_radius_min and respawn_on_arrival do not combine",
+        ),
     ],
 )
 def test_bad_config_is_named(changes, fragment):

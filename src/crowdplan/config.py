@@ -97,6 +97,10 @@ class WorldConfig:
         kinematics: "holonomic" (world-frame velocity commands) or "unicycle".
         speed_sampling: "linear" {0.2..1.0} * v_pref (paper) or "exponential" (CrowdNav).
         circle_radius: radius R of circle_crossing (4 m).
+        circle_radius_min: when set, a circle_crossing episode with n of ``humans`` humans uses
+            the radius max(circle_radius_min, circle_radius * sqrt(n / humans)): crowds keep the
+            density (humans per disc area) of the full crowd at circle_radius, and small crowds
+            keep at least circle_radius_min (e.g. the paper's 4 m with humans_min).
         square_width: side W of square_crossing (10 m).
         discomfort_dist: distance below which the discomfort penalty applies (0.2 m).
         placement_tries: rejection-sampling attempts per human before giving up.
@@ -132,6 +136,7 @@ class WorldConfig:
     kinematics: str = "holonomic"
     speed_sampling: str = "linear"
     circle_radius: float = 4.0
+    circle_radius_min: float | None = None
     square_width: float = 10.0
     discomfort_dist: float = 0.2
     placement_tries: int = 1000
@@ -210,6 +215,16 @@ class WorldConfig:
             _require(0.0 <= value <= 1.0, f"{name} must be in [0, 1], got {value!r}")
         total = sum(getattr(self, name) for name in fractions)
         _require(total <= 1.0, f"{' + '.join(fractions)} must be <= 1, got {total!r}")
+        _require(
+            self.circle_radius_min is None or 0 < self.circle_radius_min <= self.circle_radius,
+            f"circle_radius_min must be in (0, circle_radius = {self.circle_radius}], "
+            f"got {self.circle_radius_min!r}",
+        )
+        _require(
+            self.circle_radius_min is None or not self.respawn_on_arrival,
+            "circle_radius_min and respawn_on_arrival do not combine (a respawned goal is drawn "
+            "on circle_radius, not on the episode's own radius): drop one of them",
+        )
         _require(self.wait_after >= 0, f"wait_after must be >= 0, got {self.wait_after!r}")
         _require(self.wait_for >= 0, f"wait_for must be >= 0, got {self.wait_for!r}")
         unknown = [s for s in self.replay_scenes if s not in REPLAY_SCENES]

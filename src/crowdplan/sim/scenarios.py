@@ -96,6 +96,9 @@ def _crossing(config: WorldConfig, seed: int) -> InitialState:
     n = config.humans
     if config.humans_min is not None:
         n = int(np.random.default_rng([seed, _STREAM_COUNT]).integers(config.humans_min, n + 1))
+    if config.circle_radius_min is not None and config.humans:
+        radius = max(config.circle_radius_min, config.circle_radius * np.sqrt(n / config.humans))
+        config = replace(config, circle_radius=float(radius))
     robot_pos = np.array([0.0, -config.circle_radius])
     robot_goal = np.array([0.0, config.circle_radius])
     starts = [robot_pos]
