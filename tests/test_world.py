@@ -61,6 +61,9 @@ def test_circle_radius_follows_crowd_size():
         scenarios.generate(fixed, 3).human_pos,
         scenarios.generate(fixed.replace(circle_radius_min=4.0), 3).human_pos,
     )
+    # square_crossing keeps its robot at circle_radius whatever the crowd
+    square = cfg.replace(scenario="square_crossing")
+    assert all(scenarios.generate(square, seed).robot_pos[1] == -5.0 for seed in range(20))
 
 
 def test_square_crossing_sides():

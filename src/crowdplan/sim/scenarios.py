@@ -96,7 +96,11 @@ def _crossing(config: WorldConfig, seed: int) -> InitialState:
     n = config.humans
     if config.humans_min is not None:
         n = int(np.random.default_rng([seed, _STREAM_COUNT]).integers(config.humans_min, n + 1))
-    if config.circle_radius_min is not None and config.humans:
+    if (
+        config.circle_radius_min is not None
+        and config.scenario == "circle_crossing"
+        and config.humans
+    ):
         radius = max(config.circle_radius_min, config.circle_radius * np.sqrt(n / config.humans))
         config = replace(config, circle_radius=float(radius))
     robot_pos = np.array([0.0, -config.circle_radius])
