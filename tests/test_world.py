@@ -66,6 +66,31 @@ def test_circle_radius_follows_crowd_size():
     assert all(scenarios.generate(square, seed).robot_pos[1] == -5.0 for seed in range(20))
 
 
+def test_plain_episodes_have_nominal_orca_humans():
+    mixed = WorldConfig(
+        humans=5,
+        randomize_attributes=True,
+        social_force_fraction=0.3,
+        static_fraction=0.1,
+        waiting_fraction=0.1,
+        plain_fraction=0.5,
+    )
+    plain = mixed.replace(randomize_attributes=False, social_force_fraction=0.0)
+    plain = plain.replace(static_fraction=0.0, waiting_fraction=0.0, plain_fraction=0.0)
+    nominal = 0
+    for seed in range(100):
+        init = scenarios.generate(mixed, seed)
+        if np.all(init.human_radius == 0.3) and np.all(init.human_kind == 0):
+            nominal += 1
+            # a plain episode is the scene of the world without the mixture options
+            expected = scenarios.generate(plain, seed)
+        else:  # any other is the scene of the mixture without plain episodes
+            expected = scenarios.generate(mixed.replace(plain_fraction=0.0), seed)
+        np.testing.assert_array_equal(init.human_pos, expected.human_pos)
+        np.testing.assert_array_equal(init.human_kind, expected.human_kind)
+    assert 35 <= nominal <= 65
+
+
 def test_square_crossing_sides():
     cfg = WorldConfig(scenario="square_crossing", humans=5)
     for seed in range(20):
@@ -216,6 +241,7 @@ def test_batched_equals_single():
         ({"kinematics": "car"}, "kinematics must be one of"),
         ({"speed_sampling": "log"}, "speed_sampling must be one of"),
         ({"bogus": 1}, "unknown key(s) ['bogus']"),
+        ({"plain_fraction": 1.5}, "plain_fraction must be in [0, 1], got 1.5"),
         ({"circle_radius_min": 4.5}, "circle_radius_min must be in (0, circle_radius = 4.0]"),
         (
             {"circle_radius_min": 3.0, "respawn_on_arrival": True},

@@ -114,6 +114,10 @@ class WorldConfig:
         social_force_fraction, static_fraction, waiting_fraction: probability that a generated
             human is driven by the social force, stands still, or walks with ORCA but stops
             ``wait_after`` seconds into the episode for ``wait_for`` seconds (the rest are ORCA).
+        plain_fraction: probability that a generated circle/square episode is plain: all its
+            humans walk with ORCA at human_v_pref with human_radius (randomize_attributes and the
+            kind fractions skip it; humans_min and circle_radius_min still apply), so that a
+            mixture keeps rehearsing the nominal crowd it was fine-tuned from.
         replay_scenes: ETH/UCY scenes of the replay scenario (eth and hotel are for development
             and training; zara1, zara2 and univ are held out: measuring only).
         replay_min_humans: fewest replayed pedestrians near the robot's path in a replay case.
@@ -148,6 +152,7 @@ class WorldConfig:
     social_force_fraction: float = 0.0
     static_fraction: float = 0.0
     waiting_fraction: float = 0.0
+    plain_fraction: float = 0.0
     wait_after: float = 2.0
     wait_for: float = 5.0
     replay_scenes: tuple[str, ...] = ("eth", "hotel")
@@ -210,7 +215,7 @@ class WorldConfig:
             f"humans_min must be between 0 and humans ({self.humans}), got {self.humans_min!r}",
         )
         fractions = ("social_force_fraction", "static_fraction", "waiting_fraction")
-        for name in (*fractions, "replay_fraction"):
+        for name in (*fractions, "plain_fraction", "replay_fraction"):
             value = getattr(self, name)
             _require(0.0 <= value <= 1.0, f"{name} must be in [0, 1], got {value!r}")
         total = sum(getattr(self, name) for name in fractions)

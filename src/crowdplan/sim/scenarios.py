@@ -35,7 +35,7 @@ from crowdplan.sim.initial_state import (
 )
 
 # Independent random streams of one episode: default_rng([seed, stream]).
-_STREAM_COUNT, _STREAM_KINDS, _STREAM_ROTATION, _STREAM_REPLAY_MIX = 1, 2, 3, 4
+_STREAM_COUNT, _STREAM_KINDS, _STREAM_ROTATION, _STREAM_REPLAY_MIX, _STREAM_PLAIN = 1, 2, 3, 4, 5
 
 
 def check_seed(seed: object) -> int:
@@ -103,6 +103,17 @@ def _crossing(config: WorldConfig, seed: int) -> InitialState:
     ):
         radius = max(config.circle_radius_min, config.circle_radius * np.sqrt(n / config.humans))
         config = replace(config, circle_radius=float(radius))
+    if (
+        config.plain_fraction > 0
+        and np.random.default_rng([seed, _STREAM_PLAIN]).random() < config.plain_fraction
+    ):
+        config = replace(
+            config,
+            randomize_attributes=False,
+            social_force_fraction=0.0,
+            static_fraction=0.0,
+            waiting_fraction=0.0,
+        )
     robot_pos = np.array([0.0, -config.circle_radius])
     robot_goal = np.array([0.0, config.circle_radius])
     starts = [robot_pos]
