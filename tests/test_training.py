@@ -96,6 +96,18 @@ def test_validation_runs_with_val_humans(tmp_path, monkeypatch):
     }
 
 
+def test_test_world_paper_plays_the_default_world_with_the_runs_robot(tmp_path):
+    trainer = train_tiny(TINY, tmp_path, "a", episodes=2, val_humans=0)
+    trainer.config = dataclasses.replace(trainer.config, test_episodes=2, test_world="paper")
+    trainer.test()
+    world = json.loads((trainer.run_dir / "test" / "summary.json").read_text())["meta"]["world"]
+    expected = dataclasses.asdict(trainer.config.world.paper_world())
+    assert world["humans"] == 5 and world["time_limit"] == 25.0
+    assert world["action_frame"] == expected["action_frame"] == trainer.config.world.action_frame
+    with pytest.raises(ValueError, match="test_world"):
+        config_from_dict({**TINY, "test_world": "default"})
+
+
 def test_demonstrations_and_behaviour_cloning_warm_start_resume_exactly(tmp_path):
     demo = {"demo_episodes": 3, "bc_epochs": 2, "random_steps": 0, "actor_warmup_updates": 8}
     config = config_from_dict({**TINY, "dsac": {**TINY["dsac"], **demo}})

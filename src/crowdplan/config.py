@@ -161,6 +161,12 @@ class WorldConfig:
     scenario_file: str | None = None
     social_force: SocialForceConfig = field(default_factory=SocialForceConfig)
 
+    def paper_world(self) -> WorldConfig:
+        """The default (the paper's) world with this world's robot: its kinematics, action frame
+        and speed sampling (what ``--default-world`` evaluates a model in)."""
+        own = ("kinematics", "action_frame", "speed_sampling")
+        return WorldConfig(**{key: getattr(self, key) for key in own})
+
     def __post_init__(self) -> None:
         if isinstance(self.orca, dict):
             object.__setattr__(self, "orca", from_dict(OrcaConfig, self.orca, "world.orca"))

@@ -50,8 +50,7 @@ def world_from_args(args: argparse.Namespace, policy, base: WorldConfig) -> Worl
     from crowdplan.policies import check_compatible, parse_options, world_differences
 
     if args.default_world:
-        own = ("kinematics", "action_frame", "speed_sampling")
-        base = WorldConfig(**{key: getattr(base, key) for key in own})
+        base = base.paper_world()
     changes = parse_options(args.option, own_flags=("scenario", "humans"))
     if args.scenario is not None:
         changes["scenario"] = args.scenario

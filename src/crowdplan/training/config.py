@@ -54,6 +54,9 @@ class TrainConfig:
         checkpoint_interval: episodes between checkpoints.
         log_interval: episodes between progress lines and update-statistics rows.
         test_episodes: test cases evaluated at the end (0 skips the final test).
+        test_world: the world of that test: ``validation`` (the world the model was selected
+            in) or ``paper`` (the default world with the run's robot, as ``crowdplan eval
+            --default-world``: for mixtures judged on the paper's protocol).
         torch_threads: torch intra-op threads (1 is fastest for most of these small networks;
             SARL's updates gain from 2 on an idle 2-core machine, docs/benchmarks.md).
         device: where the networks train, "cpu" or a CUDA device such as "cuda" (optional).
@@ -77,6 +80,7 @@ class TrainConfig:
     checkpoint_interval: int = spec(250, low=1)
     log_interval: int = spec(50, low=1)
     test_episodes: int = spec(500, low=0, high=500)
+    test_world: str = spec("validation", choices=("validation", "paper"))
     torch_threads: int = spec(1, low=1)
     device: str = "cpu"
     world: WorldConfig = field(default_factory=WorldConfig)

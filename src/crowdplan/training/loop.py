@@ -420,9 +420,12 @@ class Trainer:
     def test(self) -> dict:
         """Evaluate the best-validation model on the test cases of the validation world (the
         training world, or ``val_humans`` humans when that is set: the world the model was
-        selected in); writes run_dir/test/."""
+        selected in) or, with ``test_world: paper``, of the paper's world; writes
+        run_dir/test/."""
         policy, _ = load_model_policy(str(self.run_dir / "best_model.pt"))
         world = self.config.validation_world()
+        if self.config.test_world == "paper":
+            world = world.paper_world()
         seeds = evaluation.test_seeds(self.config.test_episodes)
         records = evaluation.run_episodes(policy, world, seeds)
         summary = evaluation.summarize(records)
