@@ -17,12 +17,14 @@ import yaml
 
 from crowdplan.backends import make_backend
 from crowdplan.backends.sweep import (
+    TRIAL_METRICS,
     SweepFolder,
     expand,
     parse_grid,
     parse_seeds,
     run_sweep,
     summarize,
+    trial_result,
 )
 from crowdplan.cli import main
 from crowdplan.training import config_from_dict
@@ -255,6 +257,22 @@ def test_sweep_runs_skips_finished_and_resumes_stopped_trials(tmp_path):
     assert cells[:3] == ["dsac.lr=0.0001-s0", "0", "4"]
     assert cells[6] == ("never" if first_095 is None else str(first_095))
     assert cells[-1].startswith("last validation (episode 4)")
+
+
+@pytest.mark.parametrize(
+    ("test_world", "source"), [(None, "test (3 cases)"), ("paper", "test (3 cases, paper world)")]
+)
+def test_trial_result_names_the_world_of_its_test(tmp_path, monkeypatch, test_world, source):
+    monkeypatch.setattr("crowdplan.backends.sweep.training_stability", lambda run_dir: {})
+    meta = {"seed": 0, "episodes": 4, "hours_per_10k_episodes": 1.0}
+    (tmp_path / "meta.json").write_text(json.dumps(meta))
+    config = {"name": "tiny"} if test_world is None else {"name": "tiny", "test_world": test_world}
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+    (tmp_path / "test").mkdir()
+    metrics = ["episodes", *TRIAL_METRICS]
+    summary = {key: {"value": 3 if key == "episodes" else 0.5} for key in metrics}
+    (tmp_path / "test" / "summary.json").write_text(json.dumps(summary))
+    assert trial_result("trial", tmp_path)["source"] == source
 
 
 def test_a_trial_trained_past_its_budget_without_a_result_is_finished_not_refused(tmp_path):

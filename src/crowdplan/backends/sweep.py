@@ -286,7 +286,9 @@ def trial_result(name: str, run_dir: Path) -> dict[str, Any]:
     if test.is_file():
         summary = json.loads(test.read_text())
         metrics = {k: summary[k]["value"] for k in TRIAL_METRICS}
-        source = f"test ({summary['episodes']['value']} cases)"
+        config = yaml.safe_load((run_dir / "config.yaml").read_text())
+        world = ", paper world" if config.get("test_world") == "paper" else ""
+        source = f"test ({summary['episodes']['value']} cases{world})"
     else:
         import csv
 
