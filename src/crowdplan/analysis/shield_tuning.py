@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from crowdplan.config import WorldConfig
 from crowdplan.evaluation import Split, run_episodes, summarize
 from crowdplan.io import write_json
 from crowdplan.models import load_model_policy
@@ -43,9 +42,7 @@ def tune(
         table[world] = {}
         for horizon in horizons:
             policy, trained = load_model_policy(model, shield=horizon)
-            own = ("kinematics", "action_frame", "speed_sampling")
-            config = WorldConfig(**{key: getattr(trained, key) for key in own})
-            config = config.replace(**TUNING_WORLDS[world])
+            config = trained.paper_world().replace(**TUNING_WORLDS[world])
             summary = summarize(run_episodes(policy, config, TUNING.seeds(cases)), config)
             table[world][str(horizon)] = {
                 key: summary[key]["value"]
