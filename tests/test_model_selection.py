@@ -7,11 +7,13 @@ import pytest
 import torch
 import yaml
 
+from crowdplan import evaluation
 from crowdplan.analysis.averaged_validation import main as averaged_validation
 from crowdplan.cli import main
-from crowdplan.models import load_payload
+from crowdplan.models import load_model_policy, load_payload
 from crowdplan.training import config_from_dict
-from crowdplan.training.loop import _best_val_score, improves, selection_score
+from crowdplan.training.config import load_config
+from crowdplan.training.loop import _best_val_score, improves, selection_score, validation_row
 from tests.test_policy_average import TINY, _csv
 
 ROWS = [
@@ -33,6 +35,52 @@ def _selected(select_by: str) -> int:
 def test_reward_selection_takes_the_faster_policy_and_success_selection_the_safer():
     assert _selected("reward") == 1
     assert _selected("success") == 2
+
+
+def test_with_the_papers_world_selection_means_the_two_worlds_scores():
+    row = {"success_rate": 0.9, "mean_reward": 0.2, "paper_success_rate": 1.0}
+    row["paper_mean_reward"] = 0.4
+    assert selection_score(row, "success") == pytest.approx((0.95, 0.3))
+    assert selection_score(row, "reward") == pytest.approx((0.3,))
+    # a policy that gives up the paper's world for the mixture loses to a balanced one
+    mixture_only = {**row, "success_rate": 0.98, "paper_success_rate": 0.8}
+    assert improves(selection_score(row, "success"), selection_score(mixture_only, "success"))
+
+
+def test_val_paper_world_validates_in_both_worlds_and_selects_on_their_mean(tmp_path):
+    config = tmp_path / "both.yaml"
+    config.write_text(
+        yaml.safe_dump({**TINY, "val_paper_world": True, "select_by": "success", "val_episodes": 2})
+    )
+    run = tmp_path / "both"
+    assert main(["train", "--config", str(config), "--out", str(run), "-q"]) == 0
+    rows = _csv(run / "validation.csv")
+    # the paper_* columns are the validation cases of the paper's world (5 humans, 25 s)
+    trained = load_config(run / "config.yaml")
+    policy, _ = load_model_policy(str(run / "best_model.pt"))
+    seeds = evaluation.validation_seeds(trained.val_episodes)
+    paper = evaluation.summarize(
+        evaluation.run_episodes(policy, trained.world.paper_world(), seeds)
+    )
+    row = validation_row(policy, trained, 0, 0)
+    assert trained.world.paper_world().humans == 5
+    for key in ("success_rate", "time_to_goal", "mean_reward"):
+        assert row["paper_" + key] == paper[key]["value"]
+    mean = [
+        (
+            (float(r["success_rate"]) + float(r["paper_success_rate"])) / 2,
+            (float(r["mean_reward"]) + float(r["paper_mean_reward"])) / 2,
+        )
+        for r in rows
+    ]
+    selected = load_payload(run / "best_model.pt")["info"]["selected_at_episode"]
+    assert selected == int(rows[mean.index(max(mean))]["episode"])
+
+
+def test_val_paper_world_with_too_few_raw_slots_is_refused():
+    raw = {**TINY, "encoder": {"name": "raw"}, "val_paper_world": True}
+    with pytest.raises(ValueError, match="paper's 5 humans, more than the raw encoder's fixed 3"):
+        config_from_dict(raw)
 
 
 def test_an_unknown_rule_is_refused_and_reward_is_the_default():

@@ -51,6 +51,10 @@ class TrainConfig:
             mean validation reward (CrowdNav's rule), or ``success``, the success rate first and
             the mean reward among equal rates (the reward alone can prefer a faster policy with
             fewer successes: docs/training.md, section 9).
+        val_paper_world: also play the validation cases in the paper's world (the default
+            world with the run's robot, as ``test_world: paper``) and select on the mean of the
+            two worlds' scores: for a mixture judged on both the mixture and the paper's
+            protocol. validation.csv gains the ``paper_*`` columns; training never sees them.
         checkpoint_interval: episodes between checkpoints.
         log_interval: episodes between progress lines and update-statistics rows.
         test_episodes: test cases evaluated at the end (0 skips the final test).
@@ -77,6 +81,7 @@ class TrainConfig:
     keep_validation_networks: bool = False
     policy_average: int = spec(1, low=1)
     select_by: str = spec("reward", choices=("reward", "success"))
+    val_paper_world: bool = False
     checkpoint_interval: int = spec(250, low=1)
     log_interval: int = spec(50, low=1)
     test_episodes: int = spec(500, low=0, high=500)
@@ -149,6 +154,13 @@ def config_from_dict(data: Any) -> TrainConfig:
             raise ValueError(
                 f"val_humans {config.val_humans} exceeds the raw encoder's fixed "
                 f"{config.world.humans} human slots; use an encoder that pools (lsa, sa, aw, rg)"
+            )
+        paper_humans = config.world.paper_world().humans
+        if config.val_paper_world and paper_humans > config.world.humans:
+            raise ValueError(
+                f"val_paper_world validates with the paper's {paper_humans} humans, more than "
+                f"the raw encoder's fixed {config.world.humans} human slots; use an encoder "
+                "that pools (lsa, sa, aw, rg)"
             )
     return config
 

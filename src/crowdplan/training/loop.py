@@ -456,23 +456,28 @@ def _stop_requests():
 def validation_row(
     policy: Policy, config: TrainConfig, episode: int, env_steps: int
 ) -> dict[str, Any]:
-    """One row of validation.csv: ``policy`` on the run's validation cases."""
+    """One row of validation.csv: ``policy`` on the run's validation cases (with
+    ``val_paper_world``, also in the paper's world: the ``paper_*`` columns)."""
     seeds = evaluation.validation_seeds(config.val_episodes)
-    summary = evaluation.summarize(
-        evaluation.run_episodes(policy, config.validation_world(), seeds)
-    )
-    return {
-        "episode": episode,
-        "env_steps": env_steps,
-        **{k: summary[k]["value"] for k in VALIDATION_METRICS},
-    }
+    worlds = {"": config.validation_world()}
+    if config.val_paper_world:
+        worlds["paper_"] = config.validation_world().paper_world()
+    row: dict[str, Any] = {"episode": episode, "env_steps": env_steps}
+    for prefix, world in worlds.items():
+        summary = evaluation.summarize(evaluation.run_episodes(policy, world, seeds))
+        row.update({prefix + k: summary[k]["value"] for k in VALIDATION_METRICS})
+    return row
 
 
 def selection_score(row: dict[str, Any], select_by: str) -> tuple[float, ...]:
     """What best-model selection maximises for a validation ``row``: ``(mean_reward,)``, or
-    with ``select_by == "success"`` ``(success_rate, mean_reward)``; the first of equals wins."""
-    reward = float(row["mean_reward"])
-    return (float(row["success_rate"]), reward) if select_by == "success" else (reward,)
+    with ``select_by == "success"`` ``(success_rate, mean_reward)``; where the row has the
+    paper's world too (``val_paper_world``), each is the mean of the two worlds'. The first of
+    equals wins."""
+    prefixes = ("", "paper_") if "paper_success_rate" in row else ("",)
+    reward = float(np.mean([row[p + "mean_reward"] for p in prefixes]))
+    success = float(np.mean([row[p + "success_rate"] for p in prefixes]))
+    return (success, reward) if select_by == "success" else (reward,)
 
 
 def improves(score: tuple[float, ...], best: tuple[float, ...] | None) -> bool:
