@@ -50,7 +50,15 @@ def test_with_the_papers_world_selection_means_the_two_worlds_scores():
 def test_val_paper_world_validates_in_both_worlds_and_selects_on_their_mean(tmp_path):
     config = tmp_path / "both.yaml"
     config.write_text(
-        yaml.safe_dump({**TINY, "val_paper_world": True, "select_by": "success", "val_episodes": 2})
+        yaml.safe_dump(
+            {
+                **TINY,
+                "val_paper_world": True,
+                "select_by": "success",
+                "val_episodes": 2,
+                "keep_validation_models": True,
+            }
+        )
     )
     run = tmp_path / "both"
     assert main(["train", "--config", str(config), "--out", str(run), "-q"]) == 0
@@ -75,6 +83,20 @@ def test_val_paper_world_validates_in_both_worlds_and_selects_on_their_mean(tmp_
     ]
     selected = load_payload(run / "best_model.pt")["info"]["selected_at_episode"]
     assert selected == int(rows[mean.index(max(mean))]["episode"])
+
+    # the replay selects the same policies as if the run had validated in its own world alone
+    out = tmp_path / "mixture_only"
+    assert (
+        averaged_validation([str(run), "--average", "1", "--no-val-paper-world", "--out", str(out)])
+        == 0
+    )
+    replayed = _csv(out / "validation.csv")
+    assert "paper_success_rate" not in replayed[0]
+    assert [r["success_rate"] for r in replayed] == [r["success_rate"] for r in rows]
+    own = [(float(r["success_rate"]), float(r["mean_reward"])) for r in rows]
+    expected = int(rows[own.index(max(own))]["episode"])
+    assert load_payload(out / "best_model.pt")["info"]["selected_at_episode"] == expected
+    assert yaml.safe_load((out / "config.yaml").read_text())["val_paper_world"] is False
 
 
 def test_val_paper_world_with_too_few_raw_slots_is_refused():

@@ -13,7 +13,10 @@ best_model.pt, meta.json and config.yaml; episodes.csv and updates.csv are copie
 Validations before the first kept model (a run resumed with ``--keep-validation-models``) are
 left out; the first K - 1 rows after it average fewer than K policies, and meta.json says so.
 ``--select-by success`` replays the best-model selection of ``select_by: success`` as well (with
-``--average 1``: the run's own policies under that rule).
+``--average 1``: the run's own policies under that rule), and ``--no-val-paper-world`` /
+``--val-paper-world`` the selection without / with the paper's world beside the run's own
+(``val_paper_world``). The kept models of a run with ``policy_average: K`` are already the
+averaged policies: replay them with ``--average 1``.
 """
 
 from __future__ import annotations
@@ -74,10 +77,14 @@ def replay(
 
 
 def write_averaged_run(
-    run: Path, average: int, out: Path, select_by: str | None = None
+    run: Path,
+    average: int,
+    out: Path,
+    select_by: str | None = None,
+    val_paper_world: bool | None = None,
 ) -> list[dict[str, Any]]:
-    """The run folder ``policy_average: average`` (and ``select_by``, if given) would have
-    made, in ``out`` (new or empty)."""
+    """The run folder ``policy_average: average`` (and ``select_by`` and ``val_paper_world``,
+    where given) would have made, in ``out`` (new or empty)."""
     if out.exists() and any(out.iterdir()):
         raise ValueError(f"{out} is not empty; give a new folder so that nothing is overwritten")
     saved = load_config(run / "config.yaml", legacy_defaults=True)
@@ -86,6 +93,7 @@ def write_averaged_run(
         policy_average=average,
         keep_validation_models=False,
         select_by=select_by or saved.select_by,
+        val_paper_world=saved.val_paper_world if val_paper_world is None else val_paper_world,
     )
     rows, best = replay(run, average, config)
     out.mkdir(parents=True, exist_ok=True)
@@ -102,6 +110,7 @@ def write_averaged_run(
         "from_run": str(run),
         "policy_average": average,
         "select_by": config.select_by,
+        "val_paper_world": config.val_paper_world,
         "validations_left_out": [
             int(r["episode"])
             for r in _read_csv(run / "validation.csv")
@@ -110,6 +119,7 @@ def write_averaged_run(
         "command": f"python -m crowdplan.analysis.averaged_validation {run} "
         f"--average {average}"
         + (f" --select-by {select_by}" if select_by is not None else "")
+        + {None: "", True: " --val-paper-world", False: " --no-val-paper-world"}[val_paper_world]
         + f" --out {out}",
     }
     write_json(out / "meta.json", meta)
@@ -135,16 +145,24 @@ def main(argv: list[str] | None = None) -> int:
         choices=("reward", "success"),
         help="best-model selection to replay (default: the run's select_by)",
     )
+    parser.add_argument(
+        "--val-paper-world",
+        action=argparse.BooleanOptionalAction,
+        help="validate (and select) in the paper's world too, or not (default: as the run did)",
+    )
     parser.add_argument("--out", type=Path, required=True, help="new run folder to write")
     args = parser.parse_args(argv)
-    lowest = 1 if args.select_by is not None else 2
+    lowest = 1 if args.select_by is not None or args.val_paper_world is not None else 2
     if args.average < lowest:
         parser.error(
-            f"--average must be >= 2, or >= 1 with --select-by (1 alone is the run itself), "
+            f"--average must be >= 2, or >= 1 with --select-by or --[no-]val-paper-world "
+            f"(1 alone is the run itself), "
             f"got {args.average}"
         )
     live = {int(r["episode"]): r for r in _read_csv(args.run / "validation.csv")}
-    rows = write_averaged_run(args.run, args.average, args.out, args.select_by)
+    rows = write_averaged_run(
+        args.run, args.average, args.out, args.select_by, args.val_paper_world
+    )
     print("| episode | success, own policy | success, averaged | reward, own | reward, averaged |")
     print("|---:|---:|---:|---:|---:|")
     for row in rows:
