@@ -63,6 +63,14 @@ def test_val_paper_world_validates_in_both_worlds_and_selects_on_their_mean(tmp_
     run = tmp_path / "both"
     assert main(["train", "--config", str(config), "--out", str(run), "-q"]) == 0
     rows = _csv(run / "validation.csv")
+    # training never sees the second world: the same episodes as a run validating in its own
+    alone = tmp_path / "alone.yaml"
+    alone.write_text(yaml.safe_dump({**TINY, "val_episodes": 2}))
+    assert main(["train", "--config", str(alone), "--out", str(tmp_path / "alone"), "-q"]) == 0
+    played = ("seed", "outcome", "steps", "return")
+    assert [[r[k] for k in played] for r in _csv(run / "episodes.csv")] == [
+        [r[k] for k in played] for r in _csv(tmp_path / "alone" / "episodes.csv")
+    ]
     # the paper_* columns are the validation cases of the paper's world (5 humans, 25 s)
     trained = load_config(run / "config.yaml")
     policy, _ = load_model_policy(str(run / "best_model.pt"))
