@@ -150,18 +150,16 @@ def config_from_dict(data: Any) -> TrainConfig:
     config.algo_config = params
     if config.encoder.name == "raw":
         config.encoder = dataclasses.replace(config.encoder, max_humans=config.world.humans)
-        if (config.val_humans or 0) > config.world.humans:
-            raise ValueError(
-                f"val_humans {config.val_humans} exceeds the raw encoder's fixed "
-                f"{config.world.humans} human slots; use an encoder that pools (lsa, sa, aw, rg)"
-            )
-        paper_humans = config.world.paper_world().humans
-        if config.val_paper_world and paper_humans > config.world.humans:
-            raise ValueError(
-                f"val_paper_world validates with the paper's {paper_humans} humans, more than "
-                f"the raw encoder's fixed {config.world.humans} human slots; use an encoder "
-                "that pools (lsa, sa, aw, rg)"
-            )
+        validated = [("val_humans", "", config.val_humans or 0)]
+        if config.val_paper_world:
+            validated.append(("val_paper_world", "the paper's ", config.world.paper_world().humans))
+        for key, whose, humans in validated:
+            if humans > config.world.humans:
+                raise ValueError(
+                    f"{key} validates with {whose}{humans} humans, more than the raw encoder's "
+                    f"fixed {config.world.humans} human slots; use an encoder that pools "
+                    "(lsa, sa, aw, rg)"
+                )
     return config
 
 
