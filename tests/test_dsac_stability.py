@@ -20,6 +20,7 @@ ALL_ON = {
     "clip_q_targets": True,
     "alpha_min": 0.1,
     "alpha_lr": 1e-3,
+    "policy_lr": 1e-4,
     "grad_clip_norm": 0.5,
     "critic_layer_norm": True,
     "target_entropy_start_scale": 0.9,
@@ -42,6 +43,7 @@ def test_every_option_is_off_by_default():
     config = DSACConfig()
     assert not config.clip_q_targets and not config.critic_layer_norm
     assert config.alpha_min == 0 and config.alpha_lr == 0 and config.grad_clip_norm == 0
+    assert config.policy_lr == 0
     assert config.target_entropy_anneal_updates == 0
     assert not config.average_q and config.q_clip == 0 and config.entropy_penalty == 0
     agent = DSAC(config, ENCODER)
@@ -169,6 +171,25 @@ def test_temperature_has_its_own_learning_rate():
         assert abs(float(agent.log_alpha.detach()) - before) == pytest.approx(expected, rel=1e-3)
         groups = {g["name"]: g["lr"] for g in agent.actor_optimizer.param_groups}
         assert groups == {"actor": 3e-4, "alpha": expected}
+
+
+def test_policy_has_its_own_learning_rate():
+    for policy_lr, expected in ((0.0, 3e-4), (1e-4, 1e-4)):
+        agent = DSAC(DSACConfig(policy_lr=policy_lr), ENCODER)
+        before = [p.detach().clone() for p in agent.actor.parameters()]
+        agent.update(small_batch())
+        groups = {g["name"]: g["lr"] for g in agent.actor_optimizer.param_groups}
+        assert groups == {"actor": expected, "alpha": 3e-4}
+        # Adam's first step moves every parameter with a gradient by its learning rate (up to eps)
+        steps = torch.cat(
+            [
+                (p.detach() - b).abs().flatten()
+                for p, b in zip(agent.actor.parameters(), before, strict=True)
+            ]
+        )
+        assert float(steps.max()) == pytest.approx(expected, rel=1e-3)
+    critic_groups = {g["name"]: g["lr"] for g in agent.critic_optimizer.param_groups}
+    assert critic_groups == {"critic": 3e-4}
 
 
 def test_gradient_norms_are_clipped_before_each_step(monkeypatch):

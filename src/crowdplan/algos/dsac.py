@@ -105,6 +105,8 @@ class DSACConfig:
         alpha_min: temperature floor; ``log alpha`` is clamped to ``log(alpha_min)`` after each
             step (0: no floor).
         alpha_lr: Adam learning rate of the temperature (0: ``lr``).
+        policy_lr: Adam learning rate of the policy (0: ``lr``); a smaller one lets a fine-tuned
+            policy move no faster than its fresh critic learns the actions it starts taking.
         grad_clip_norm: clip the gradient norm of the critic and of the policy to this before
             their steps (0: no clipping).
         critic_layer_norm: layer norm before each hidden ReLU of the twin Q heads.
@@ -156,6 +158,7 @@ class DSACConfig:
     return_max: float = 1.5
     alpha_min: float = spec(0.0, low=0.0)
     alpha_lr: float = spec(0.0, low=0.0)
+    policy_lr: float = spec(0.0, low=0.0)
     grad_clip_norm: float = spec(0.0, low=0.0)
     critic_layer_norm: bool = False
     target_entropy_start_scale: float = 0.98
@@ -284,7 +287,11 @@ class DSAC:
         )
         self.actor_optimizer = torch.optim.Adam(
             [
-                {"params": list(actor_params.parameters()), "name": "actor"},
+                {
+                    "params": list(actor_params.parameters()),
+                    "name": "actor",
+                    "lr": config.policy_lr or config.lr,
+                },
                 {"params": [self.log_alpha], "name": "alpha", "lr": config.alpha_lr or config.lr},
             ],
             lr=config.lr,
