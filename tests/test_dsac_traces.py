@@ -135,3 +135,25 @@ def test_run_before_its_first_validation(run: Path, tmp_path: Path):
 def test_not_a_run_folder(tmp_path: Path):
     with pytest.raises(FileNotFoundError):
         dsac_traces.load_run(tmp_path)
+
+
+def test_paper_world_validation_is_drawn_beside_the_runs_own(
+    run: Path, tmp_path: Path, monkeypatch
+):
+    with open(run / "validation.csv") as f:
+        rows = list(csv.DictReader(f))
+    paper = [0.5 + i / 100 for i in range(len(rows))]
+    _write_csv(
+        run / "validation.csv",
+        [row | {"paper_success_rate": p} for row, p in zip(rows, paper, strict=True)],
+    )
+    figures = []
+    monkeypatch.setattr(dsac_traces, "_save", lambda fig, out: figures.append(fig) or out)
+    trace = dsac_traces.load_run(run)
+    dsac_traces.plot_run(trace, tmp_path / "run.png")
+    dsac_traces.plot_overview([trace], tmp_path / "all.png")
+    run_lines = {line.get_label(): line for line in figures[0].axes[3].get_lines()}
+    assert list(run_lines["validation, paper's world"].get_ydata()) == pytest.approx(paper)
+    overview_success = figures[1].axes[2].get_lines()
+    assert [list(line.get_ydata()) for line in overview_success][1] == pytest.approx(paper)
+    assert overview_success[0].get_color() == overview_success[1].get_color()

@@ -25,6 +25,7 @@ from crowdplan.algos.dsac import DSAC, DSACConfig
 from crowdplan.analysis.plots import _read, rolling_mean
 from crowdplan.io import atomic_write
 from crowdplan.training.config import load_config
+from crowdplan.training.loop import PAPER_COLUMNS
 
 REACHED = 0.95  # validation success that counts as learned (issue 12's criterion)
 FLOOR = 0.9  # ... which it must never fall below again
@@ -32,6 +33,7 @@ COLLAPSED = 0.5  # validation success below this after REACHED: a collapse
 TRAIN_WINDOW = 100  # training episodes in the sampled policy's success rate
 SHORT_WINDOW = 25  # ... and in its recent success in the collapse windows
 VALIDATION_COLUMNS = ("episode", "success_rate", "timeout_rate")
+PAPER_SUCCESS = PAPER_COLUMNS + "success_rate"  # runs with val_paper_world only
 
 
 @dataclass
@@ -329,6 +331,10 @@ def plot_run(trace: RunTraces, out: str | Path) -> Path:
 
     val_ep = trace.validation["episode"]
     ax_success.plot(val_ep, trace.validation["success_rate"], "o-", ms=3, label="validation")
+    if PAPER_SUCCESS in trace.validation:
+        ax_success.plot(
+            val_ep, trace.validation[PAPER_SUCCESS], "s--", ms=3, label="validation, paper's world"
+        )
     train_ep = trace.episodes["episode"]
     ax_success.plot(train_ep, trace.train_success(train_ep), lw=0.8, label="training (100)")
     ax_success.axhline(REACHED, color="g", lw=0.6)
@@ -347,14 +353,25 @@ def plot_run(trace: RunTraces, out: str | Path) -> Path:
 
 
 def plot_overview(traces: list[RunTraces], out: str | Path) -> Path:
-    """Alpha, entropy as a fraction of log 81, and validation success of several runs."""
+    """Alpha, entropy as a fraction of log 81, and validation success of several runs (dashed:
+    in the paper's world, for runs with ``val_paper_world``)."""
     fig, axes = _figure(1, 3, (13, 3.8))
     ax_alpha, ax_entropy, ax_success = axes[0]
     for trace in traces:
         ep, u = trace.updates["episode"], trace.updates
         ax_alpha.semilogy(ep, u["alpha"], lw=0.9, label=trace.name)
         ax_entropy.plot(ep, u["entropy"] / math.log(trace.config.n_actions), lw=0.9)
-        ax_success.plot(trace.validation["episode"], trace.validation["success_rate"], lw=0.9)
+        (line,) = ax_success.plot(
+            trace.validation["episode"], trace.validation["success_rate"], lw=0.9
+        )
+        if PAPER_SUCCESS in trace.validation:
+            ax_success.plot(
+                trace.validation["episode"],
+                trace.validation[PAPER_SUCCESS],
+                "--",
+                color=line.get_color(),
+                lw=0.9,
+            )
     ax_alpha.set(ylabel="alpha")
     ax_entropy.set(ylabel="entropy / log 81", ylim=(0, 1.05))
     ax_success.set(ylabel="validation success", ylim=(-0.02, 1.02))
