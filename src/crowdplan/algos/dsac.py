@@ -50,7 +50,8 @@ class DSACConfig:
 
     Attributes:
         gamma: discount per environment step.
-        lr: Adam learning rate of the critic, the policy and the temperature.
+        lr: Adam learning rate of the critic, and of the policy and the temperature unless
+            ``policy_lr`` / ``alpha_lr`` give their own.
         batch_size: transitions per update.
         tau: Polyak coefficient of the target critic, ``target <- (1 - tau) target + tau critic``.
         target_entropy_scale: target entropy = scale * log(n_actions).
