@@ -25,7 +25,7 @@ from crowdplan.algos.dsac import DSAC, DSACConfig
 from crowdplan.analysis.plots import _read, rolling_mean
 from crowdplan.io import atomic_write
 from crowdplan.training.config import load_config
-from crowdplan.training.loop import PAPER_COLUMNS
+from crowdplan.training.loop import PAPER_SUCCESS
 
 REACHED = 0.95  # validation success that counts as learned (issue 12's criterion)
 FLOOR = 0.9  # ... which it must never fall below again
@@ -33,7 +33,6 @@ COLLAPSED = 0.5  # validation success below this after REACHED: a collapse
 TRAIN_WINDOW = 100  # training episodes in the sampled policy's success rate
 SHORT_WINDOW = 25  # ... and in its recent success in the collapse windows
 VALIDATION_COLUMNS = ("episode", "success_rate", "timeout_rate")
-PAPER_SUCCESS = PAPER_COLUMNS + "success_rate"  # runs with val_paper_world only
 
 
 @dataclass

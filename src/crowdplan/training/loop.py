@@ -59,8 +59,10 @@ VALIDATION_METRICS = (
     "time_to_goal",
     "mean_reward",
 )
-# Prefix of the validation.csv columns played in the paper's world (``val_paper_world``).
-PAPER_COLUMNS = "paper_"
+# Prefix of the validation.csv columns played in the paper's world (``val_paper_world``), and
+# the column that tells a row has them.
+PAPER_PREFIX = "paper_"
+PAPER_SUCCESS = PAPER_PREFIX + "success_rate"
 
 
 # Settings a run may change when it resumes: the budget and how it is validated.
@@ -462,7 +464,7 @@ def validation_row(
     ``val_paper_world``, also in the paper's world: the ``paper_*`` columns)."""
     seeds = evaluation.validation_seeds(config.val_episodes)
     own = config.validation_world()
-    worlds = {"": own, PAPER_COLUMNS: own.paper_world()} if config.val_paper_world else {"": own}
+    worlds = {"": own, PAPER_PREFIX: own.paper_world()} if config.val_paper_world else {"": own}
     row: dict[str, Any] = {"episode": episode, "env_steps": env_steps}
     for prefix, world in worlds.items():
         summary = evaluation.summarize(evaluation.run_episodes(policy, world, seeds))
@@ -475,7 +477,7 @@ def selection_score(row: dict[str, Any], select_by: str) -> tuple[float, ...]:
     with ``select_by == "success"`` ``(success_rate, mean_reward)``; where the row has the
     paper's world too (``val_paper_world``), each is the mean of the two worlds'. The first of
     equals wins."""
-    prefixes = ("", PAPER_COLUMNS) if PAPER_COLUMNS + "success_rate" in row else ("",)
+    prefixes = ("", PAPER_PREFIX) if PAPER_SUCCESS in row else ("",)
     reward = float(np.mean([row[p + "mean_reward"] for p in prefixes]))
     success = float(np.mean([row[p + "success_rate"] for p in prefixes]))
     return (success, reward) if select_by == "success" else (reward,)
