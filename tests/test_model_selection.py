@@ -1,6 +1,7 @@
 """Best-model selection: by validation reward (CrowdNav's rule) or success first, in training,
 on resume from older checkpoints, and in the offline replay."""
 
+import dataclasses
 import math
 
 import pytest
@@ -8,6 +9,7 @@ import torch
 import yaml
 
 from crowdplan import evaluation
+from crowdplan.analysis import averaged_validation as averaged_validation_module
 from crowdplan.analysis.averaged_validation import main as averaged_validation
 from crowdplan.cli import main
 from crowdplan.models import load_model_policy, load_payload
@@ -105,6 +107,29 @@ def test_val_paper_world_validates_in_both_worlds_and_selects_on_their_mean(tmp_
     expected = int(rows[own.index(max(own))]["episode"])
     assert load_payload(out / "best_model.pt")["info"]["selected_at_episode"] == expected
     assert yaml.safe_load((out / "config.yaml").read_text())["val_paper_world"] is False
+
+
+def test_the_replay_of_the_runs_own_policies_takes_its_rows_as_a_new_validation_would(
+    tmp_path, monkeypatch
+):
+    config = tmp_path / "both.yaml"
+    both = {**TINY, "val_paper_world": True, "val_episodes": 2, "keep_validation_models": True}
+    config.write_text(yaml.safe_dump(both))
+    run = tmp_path / "both"
+    assert main(["train", "--config", str(config), "--out", str(run), "-q"]) == 0
+    out = tmp_path / "mixture_only"
+    with monkeypatch.context() as patched:  # nothing is validated again: the rows are the run's
+        patched.setattr(averaged_validation_module, "validation_row", None)
+        args = [str(run), "--average", "1", "--no-val-paper-world", "--out", str(out)]
+        assert averaged_validation(args) == 0
+    replayed = _csv(out / "validation.csv")
+    mixture_only = dataclasses.replace(load_config(run / "config.yaml"), val_paper_world=False)
+    models = sorted((run / "validation_models").glob("episode-*.pt"))
+    assert len(replayed) == len(models) > 1
+    for row, model in zip(replayed, models, strict=True):
+        policy, _ = load_model_policy(str(model))
+        fresh = validation_row(policy, mixture_only, int(row["episode"]), int(row["env_steps"]))
+        assert row == {key: str(value) for key, value in fresh.items()}
 
 
 def test_val_paper_world_with_too_few_raw_slots_is_refused():

@@ -16,7 +16,8 @@ left out; the first K - 1 rows after it average fewer than K policies, and meta.
 ``--average 1``: the run's own policies under that rule), and ``--no-val-paper-world`` /
 ``--val-paper-world`` the selection without / with the paper's world beside the run's own
 (``val_paper_world``). The kept models of a run with ``policy_average: K`` are already the
-averaged policies: replay them with ``--average 1``.
+averaged policies: replay them with ``--average 1``, which validates nothing again where the
+run's validation.csv holds the columns the replay needs (seconds, not minutes per run).
 """
 
 from __future__ import annotations
@@ -36,7 +37,13 @@ from crowdplan.io import atomic_write, write_json
 from crowdplan.models import load_payload
 from crowdplan.training.checkpoint import torch_save_atomic
 from crowdplan.training.config import TrainConfig, load_config
-from crowdplan.training.loop import improves, selection_score, validation_row
+from crowdplan.training.loop import (
+    PAPER_PREFIX,
+    VALIDATION_METRICS,
+    improves,
+    selection_score,
+    validation_row,
+)
 from crowdplan.training.policy_average import average_payloads, payload_policy
 from crowdplan.training.run_logs import write_csv
 
@@ -57,9 +64,14 @@ def replay(
     run: Path, average: int, config: TrainConfig
 ) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
     """Validation rows of the averaged policies and the best model (by the config's
-    ``select_by``, the first of equals, as the training loop keeps it)."""
-    own_rows = _read_csv(run / "validation.csv")
-    steps = {int(row["episode"]): int(row["env_steps"]) for row in own_rows}
+    ``select_by``, the first of equals, as the training loop keeps it).
+
+    With ``average`` 1 each kept model is the policy the run validated, so where the run's
+    validation.csv holds every column this validation writes, its rows are taken as they are
+    instead of validating again (the same numbers: validation is deterministic)."""
+    own_rows = {int(row["episode"]): row for row in _read_csv(run / "validation.csv")}
+    columns = _validation_columns(config)
+    reuse = average == 1 and all(columns <= row.keys() for row in own_rows.values())
     recent: list[dict[str, Any]] = []
     rows, best, best_score = [], None, None
     for episode, path in validation_models(run):
@@ -67,13 +79,25 @@ def replay(
         payload["info"] = {k: v for k, v in payload["info"].items() if k != "success_rate"}
         recent = [*recent, payload][-average:]
         averaged = average_payloads(recent)
-        row = validation_row(payload_policy(averaged, config.name), config, episode, steps[episode])
+        own = own_rows[episode]
+        if reuse:
+            row = {"episode": episode, "env_steps": int(own["env_steps"])}
+            row |= {key: float(own[key]) for key in columns}
+        else:
+            policy = payload_policy(averaged, config.name)
+            row = validation_row(policy, config, episode, int(own["env_steps"]))
         rows.append(row)
         score = selection_score(row, config.select_by)
         if improves(score, best_score):
             best_score = score
             best = {**averaged, "info": {**averaged["info"], "selected_at_episode": episode}}
     return rows, best
+
+
+def _validation_columns(config: TrainConfig) -> set[str]:
+    """The metric columns a validation of ``config`` writes (``validation_row``)."""
+    prefixes = ("", PAPER_PREFIX) if config.val_paper_world else ("",)
+    return {prefix + metric for prefix in prefixes for metric in VALIDATION_METRICS}
 
 
 def write_averaged_run(
