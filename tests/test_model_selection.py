@@ -129,7 +129,7 @@ def test_the_replay_of_the_runs_own_policies_takes_its_rows_as_a_new_validation_
     for row, model in zip(replayed, models, strict=True):
         policy, _ = load_model_policy(str(model))
         fresh = validation_row(policy, mixture_only, int(row["episode"]), int(row["env_steps"]))
-        assert row == {key: str(value) for key, value in fresh.items()}
+        assert list(row.items()) == [(key, str(value)) for key, value in fresh.items()]
 
 
 def test_val_paper_world_with_too_few_raw_slots_is_refused():

@@ -71,7 +71,7 @@ def replay(
     instead of validating again (the same numbers: validation is deterministic)."""
     own_rows = {int(row["episode"]): row for row in _read_csv(run / "validation.csv")}
     columns = _validation_columns(config)
-    reuse = average == 1 and all(columns <= row.keys() for row in own_rows.values())
+    reuse = average == 1 and all(set(columns) <= row.keys() for row in own_rows.values())
     recent: list[dict[str, Any]] = []
     rows, best, best_score = [], None, None
     for episode, path in validation_models(run):
@@ -94,10 +94,10 @@ def replay(
     return rows, best
 
 
-def _validation_columns(config: TrainConfig) -> set[str]:
-    """The metric columns a validation of ``config`` writes (``validation_row``)."""
+def _validation_columns(config: TrainConfig) -> tuple[str, ...]:
+    """The metric columns a validation of ``config`` writes, in ``validation_row``'s order."""
     prefixes = ("", PAPER_PREFIX) if config.val_paper_world else ("",)
-    return {prefix + metric for prefix in prefixes for metric in VALIDATION_METRICS}
+    return tuple(prefix + metric for prefix in prefixes for metric in VALIDATION_METRICS)
 
 
 def write_averaged_run(
