@@ -38,10 +38,9 @@ from crowdplan.models import load_payload
 from crowdplan.training.checkpoint import torch_save_atomic
 from crowdplan.training.config import TrainConfig, load_config
 from crowdplan.training.loop import (
-    PAPER_PREFIX,
-    VALIDATION_METRICS,
     improves,
     selection_score,
+    validation_columns,
     validation_row,
 )
 from crowdplan.training.policy_average import average_payloads, payload_policy
@@ -70,8 +69,8 @@ def replay(
     validation.csv holds every column this validation writes, its rows are taken as they are
     instead of validating again (the same numbers: validation is deterministic)."""
     own_rows = {int(row["episode"]): row for row in _read_csv(run / "validation.csv")}
-    columns = _validation_columns(config)
-    reuse = average == 1 and all(set(columns) <= row.keys() for row in own_rows.values())
+    columns = validation_columns(config)
+    reuse = average == 1 and all(row.keys() >= set(columns) for row in own_rows.values())
     recent: list[dict[str, Any]] = []
     rows, best, best_score = [], None, None
     for episode, path in validation_models(run):
@@ -92,12 +91,6 @@ def replay(
             best_score = score
             best = {**averaged, "info": {**averaged["info"], "selected_at_episode": episode}}
     return rows, best
-
-
-def _validation_columns(config: TrainConfig) -> tuple[str, ...]:
-    """The metric columns a validation of ``config`` writes, in ``validation_row``'s order."""
-    prefixes = ("", PAPER_PREFIX) if config.val_paper_world else ("",)
-    return tuple(prefix + metric for prefix in prefixes for metric in VALIDATION_METRICS)
 
 
 def write_averaged_run(

@@ -472,6 +472,12 @@ def validation_row(
     return row
 
 
+def validation_columns(config: TrainConfig) -> tuple[str, ...]:
+    """The metric columns ``validation_row`` writes for ``config``, in its order."""
+    prefixes = ("", PAPER_PREFIX) if config.val_paper_world else ("",)
+    return tuple(prefix + metric for prefix in prefixes for metric in VALIDATION_METRICS)
+
+
 def selection_score(row: dict[str, Any], select_by: str) -> tuple[float, ...]:
     """What best-model selection maximises for a validation ``row``: ``(mean_reward,)``, or
     with ``select_by == "success"`` ``(success_rate, mean_reward)``; where the row has the
