@@ -134,7 +134,8 @@ def test_set_assigns_config_keys_of_a_new_run(finished_run, tmp_path):
     [
         (["dsac.lr=fast"], "--set: dsac.lr must be a number, got 'fast'"),
         (["dsac.lrr=1"], "unknown key 'lrr' in dsac; valid keys: ['actor_warmup_updates'"),
-        (["value_rl.gamma=0.9"], "unknown key 'value_rl' in the top level"),
+        (["value_rl.gamma=0.9"], "'value_rl' is the section of another algorithm; this config"),
+        (["valu_rl.gamma=0.9"], "unknown key 'valu_rl' in the top level"),
         (["dsac.lr=1e-4,3e-4"], "takes one value, got 2; to train each, use crowdplan sweep"),
         (["world.humans=3"], "--set world.humans and --humans both set world.humans"),
         (["dsac.lr"], "--set takes KEY=VALUE"),

@@ -174,14 +174,14 @@ class WorldConfig:
             value = from_dict(SocialForceConfig, self.social_force, "world.social_force")
             object.__setattr__(self, "social_force", value)
         check_fields(self, "world")
+        _require(
+            isinstance(self.humans, int) and not isinstance(self.humans, bool) and self.humans >= 0,
+            f"humans must be an integer >= 0, got {self.humans!r}",
+        )
         self._check_generalization_options()
         _require(
             self.scenario in SCENARIOS,
             f"scenario must be one of {SCENARIOS}, got {self.scenario!r}",
-        )
-        _require(
-            isinstance(self.humans, int) and not isinstance(self.humans, bool) and self.humans >= 0,
-            f"humans must be an integer >= 0, got {self.humans!r}",
         )
         for name in (
             "dt",

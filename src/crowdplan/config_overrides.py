@@ -49,11 +49,24 @@ def lookup(data: dict[str, Any], key: str) -> Any:
     node: Any = data
     for depth, part in enumerate(key.split(".")):
         if not isinstance(node, dict) or part not in node:
+            if depth == 0 and "algo" in node:
+                _refuse_other_algorithms_section(key, part, node["algo"])
             where = ".".join(key.split(".")[:depth]) or "the top level"
             valid = sorted(node) if isinstance(node, dict) else []
             raise ValueError(f"--set {key}: unknown key {part!r} in {where}; valid keys: {valid}")
         node = node[part]
     return node
+
+
+def _refuse_other_algorithms_section(key: str, section: str, algo: str) -> None:
+    """A key under another algorithm's section gets the config loader's answer, not a list."""
+    from crowdplan.algos.registry import ALGORITHMS
+
+    if section in ALGORITHMS:
+        raise ValueError(
+            f"--set {key}: {section!r} is the section of another algorithm; this config trains "
+            f"{algo!r} (its keys: {algo}.*; set algo: {section} in the config to train that one)"
+        )
 
 
 def assign(data: dict[str, Any], key: str, value: Any) -> None:
