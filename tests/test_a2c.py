@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import os
+import re
 import signal
 
 import numpy as np
@@ -20,7 +21,7 @@ from crowdplan.algos.a2c import (
 )
 from crowdplan.algos.base import Transitions
 from crowdplan.cli import main
-from crowdplan.models import load_model_policy
+from crowdplan.models import load_model_policy, resolve_model_path
 from crowdplan.nets.lstm_rl import LSTMRLEncoder
 from crowdplan.sim.env import CrowdNavVectorEnv
 from crowdplan.training import Trainer, config_from_dict, load_config
@@ -186,6 +187,25 @@ def test_trains_without_humans(tmp_path):
     assert trainer.agent.n_updates > 0 and torch.isfinite(_weights(trainer)).all()
 
 
+def test_init_model_starts_from_a_trained_network_and_refuses_what_does_not_fit(tmp_path):
+    world_frame = {**TINY["world"], "action_frame": "world"}
+    ten = {**TINY, "world": {**world_frame, "humans": 10}, "a2c": {"init_model": "lstm-a2c"}}
+    trainer = Trainer(config_from_dict(ten), tmp_path / "warm", progress=False)
+    shipped = torch.load(resolve_model_path("lstm-a2c"), weights_only=True)["network"]
+    for key, value in trainer.agent.net.state_dict().items():
+        assert torch.equal(value, shipped[key]), key
+    refused = [
+        ({"world": TINY["world"]}, "acts in the world frame, the run in the goal frame"),
+        ({"world": {**world_frame, "kinematics": "unicycle"}}, "drives a holonomic robot"),
+        ({"a2c": {"init_model": "lstm-a2c", "lstm_hidden": 20}}, "do not match the run's a2c"),
+        ({"a2c": {"init_model": "sarl"}}, "model file, not an LSTM-A2C model"),
+    ]
+    for change, fragment in refused:
+        with pytest.raises(ValueError, match=re.escape(fragment)):
+            Trainer(config_from_dict({**ten, **change}), tmp_path / "refused", progress=False)
+    assert not (tmp_path / "refused").exists()
+
+
 # ------------------------------------------------------------------ determinism and resume
 def test_same_seed_twice_is_identical_and_another_seed_differs(tmp_path):
     a, b = train_tiny(TINY, tmp_path, "a"), train_tiny(TINY, tmp_path, "b")
@@ -267,6 +287,10 @@ def test_shipped_presets_load():
     # the 10-human preset differs only by its entropy bonus (docs/baselines.md)
     assert ten.algo_config == dataclasses.replace(five.algo_config, entropy_coef=0.01)
     assert (ten.episodes, ten.val_interval) == (five.episodes, five.val_interval) == (40000, 100)
+    # the warm start: the 5-human settings, from the shipped 5-human model, half the budget
+    warm = load_config("configs/lstm_a2c_h10_warm.yaml")
+    assert warm.algo_config == dataclasses.replace(five.algo_config, init_model="lstm-a2c")
+    assert (warm.world, warm.episodes) == (ten.world, ten.episodes // 2)
 
 
 # ------------------------------------------------------------------ bad input

@@ -213,6 +213,34 @@ def load_weights(module: torch.nn.Module, state: dict[str, Any], path: Path, wha
         raise ValueError(f"weights in {path} do not match {what}: {error}") from error
 
 
+def initial_model_payload(
+    spec: str, section: str, expected: str, what: str, world: WorldConfig
+) -> tuple[dict[str, Any], Path]:
+    """The model file ``spec`` that initialises a run (``<section>.init_model``) and its path,
+    refused unless it has the ``expected`` format and acts in the run ``world``'s action frame
+    and kinematics."""
+    path = resolve_model_path(spec)
+    payload = load_payload(path)
+    if payload.get("format") != expected:
+        raise ValueError(
+            f"{section}.init_model {path} is a {payload.get('format')!r} model file, "
+            f"not {what} model ({expected})"
+        )
+    frame = payload["world"].get("action_frame", "world")
+    if frame != world.action_frame:
+        raise ValueError(
+            f"{section}.init_model {path} acts in the {frame} frame, the run in the "
+            f"{world.action_frame} frame (see crowdplan.algos.action_frames)"
+        )
+    kinematics = payload["world"].get("kinematics", "holonomic")
+    if kinematics != world.kinematics:
+        raise ValueError(
+            f"{section}.init_model {path} drives a {kinematics} robot, the run a "
+            f"{world.kinematics} one: their actions differ"
+        )
+    return payload, path
+
+
 def load_model_policy(spec: str, shield: float | None = None) -> tuple[Policy, WorldConfig]:
     """Load a trained model of any algorithm as a greedy policy and the world config it was
     trained in; the file's ``format`` says which algorithm reads it.

@@ -82,6 +82,10 @@ class A2CConfig:
         lstm_hidden: hidden size of the encoder's LSTM (SPEC: 50).
         actor_hidden: hidden sizes of the actor MLP.
         critic_hidden: hidden sizes of the critic MLP.
+        init_model: an LSTM-A2C model file (or shipped model name) whose network (encoder,
+            actor and critic) starts the run instead of a random one, e.g. the 5-human
+            ``lstm-a2c`` for a 10-human run; same network sizes, action frame and kinematics
+            as the run. The optimizer starts afresh.
     """
 
     gamma: float = spec(0.99, low=0.0, high=1.0)
@@ -96,6 +100,7 @@ class A2CConfig:
     lstm_hidden: int = spec(50, low=1)
     actor_hidden: tuple[int, ...] = (150, 100)
     critic_hidden: tuple[int, ...] = (150, 100, 100)
+    init_model: str | None = None
 
     def __post_init__(self) -> None:
         check_fields(self, "a2c")
@@ -181,6 +186,8 @@ class A2CAgent:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(config.seed)
             self.net = ActorCritic(self.params).to(device)
+        if self.params.init_model is not None:
+            self._load_initial_network(config.world)
         self.optimizer = torch.optim.Adam(self.net.parameters(), lr=self.params.lr)
         self.generator = torch.Generator(device=device).manual_seed(config.seed + 1)
         self.unicycle = config.world.kinematics == "unicycle"
@@ -188,6 +195,14 @@ class A2CAgent:
         self.rollout: list[dict[str, np.ndarray]] = []
         self.n_updates = 0
         self.episodes = 0
+
+    def _load_initial_network(self, world: WorldConfig) -> None:
+        from crowdplan.models import initial_model_payload
+
+        payload, path = initial_model_payload(
+            self.params.init_model, "a2c", A2C_MODEL_FORMAT, "an LSTM-A2C", world
+        )
+        load_weights(self.net, payload["network"], path, "the run's a2c network sizes")
 
     def pretrain(self, log: Any) -> None:
         """A2C learns from its own experience only."""

@@ -25,22 +25,15 @@ if TYPE_CHECKING:
 
 def initial_actor_state(config: TrainConfig) -> dict[str, torch.Tensor]:
     """The policy weights of ``config.algo_config.init_model``, checked against the run."""
-    from crowdplan.models import load_payload, resolve_model_path
+    from crowdplan.models import initial_model_payload
 
-    path = resolve_model_path(config.algo_config.init_model)
-    payload = load_payload(path)
-    if payload["format"] != MODEL_FORMAT:
-        raise ValueError(f"dsac.init_model {path} is not a DSAC model file")
+    payload, path = initial_model_payload(
+        config.algo_config.init_model, "dsac", MODEL_FORMAT, "a DSAC", config.world
+    )
     if payload["encoder"] != to_dict(config.encoder):
         raise ValueError(
             f"dsac.init_model {path} has encoder {payload['encoder']}, the run "
             f"{to_dict(config.encoder)}; use the model's encoder section"
-        )
-    frame = payload["world"].get("action_frame", "world")
-    if frame != config.world.action_frame:
-        raise ValueError(
-            f"dsac.init_model {path} acts in the {frame} frame, the run in the "
-            f"{config.world.action_frame} frame (see crowdplan.algos.action_frames)"
         )
     return payload["actor"]
 
