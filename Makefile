@@ -76,9 +76,10 @@ records: setup
 	for p in $(RECORD_SQUARE); do $(BIN)/crowdplan eval $$p --default-world --episodes 500 --record --force -q \
 		--scenario square_crossing --out results/records/square/$$(basename $${p#*=}) > /dev/null || exit 1; done
 
-# The shipped holonomic planners but CADRL and LSTM-RL in every generalisation test world
+# The shipped planners but CADRL and LSTM-RL in every generalisation test world
 # (docs/generalization.md).
-PLANNERS := lsa-dsac lsa-dsac@shield=0 lsa-dsac-paper lsa-dsac-paper-goal sarl lstm-a2c rg-dqn orca straight
+PLANNERS := lsa-dsac lsa-dsac@shield=0 lsa-dsac-paper lsa-dsac-paper-goal lsa-dsac-unicycle \
+	sarl lstm-a2c rg-dqn orca straight
 generalization: setup
 	$(PY) -m crowdplan.analysis.test_worlds --out results/generalization $(PLANNERS)
 	$(BIN)/crowdplan report --fill docs/generalization.md
