@@ -76,10 +76,9 @@ records: setup
 	for p in $(RECORD_SQUARE); do $(BIN)/crowdplan eval $$p --default-world --episodes 500 --record --force -q \
 		--scenario square_crossing --out results/records/square/$$(basename $${p#*=}) > /dev/null || exit 1; done
 
-# The shipped planners but CADRL and LSTM-RL in every generalisation test world
-# (docs/generalization.md).
+# Every shipped planner in every generalisation test world (docs/generalization.md).
 PLANNERS := lsa-dsac lsa-dsac@shield=0 lsa-dsac-paper lsa-dsac-paper-goal lsa-dsac-unicycle \
-	sarl lstm-a2c rg-dqn orca straight
+	cadrl lstm-rl sarl lstm-a2c rg-dqn orca straight
 generalization: setup
 	$(PY) -m crowdplan.analysis.test_worlds --out results/generalization $(PLANNERS)
 	$(BIN)/crowdplan report --fill docs/generalization.md
