@@ -206,6 +206,31 @@ def test_init_model_starts_from_a_trained_network_and_refuses_what_does_not_fit(
     assert not (tmp_path / "refused").exists()
 
 
+def test_validate_at_start_scores_the_starting_model_as_episode_0(tmp_path):
+    from crowdplan import evaluation
+
+    world = {**TINY["world"], "action_frame": "world", "humans": 10}
+    warm = {**TINY, "world": world, "a2c": {"init_model": "lstm-a2c"}, "validate_at_start": True}
+    trainer = Trainer(config_from_dict(warm), tmp_path / "warm", progress=False)
+    trainer.run()
+    first = trainer.validations[0]
+    assert (first["episode"], first["env_steps"]) == (0, 0)
+    shipped, _ = load_model_policy("lstm-a2c")
+    records = evaluation.run_episodes(
+        shipped, trainer.config.validation_world(), evaluation.validation_seeds(2)
+    )
+    expected = evaluation.summarize(records)
+    assert first["success_rate"] == expected["success_rate"]["value"]
+    assert first["mean_reward"] == pytest.approx(expected["mean_reward"]["value"])
+    # without the option the first validation comes after training episodes
+    cold = Trainer(
+        config_from_dict({**warm, "validate_at_start": False}), tmp_path / "c", progress=False
+    )
+    cold.run()
+    assert [row["episode"] for row in cold.validations] == [6]
+    assert [row["episode"] for row in trainer.validations] == [0, 6]
+
+
 # ------------------------------------------------------------------ determinism and resume
 def test_same_seed_twice_is_identical_and_another_seed_differs(tmp_path):
     a, b = train_tiny(TINY, tmp_path, "a"), train_tiny(TINY, tmp_path, "b")

@@ -55,6 +55,10 @@ class TrainConfig:
             world with the run's robot, as ``test_world: paper``) and select on the mean of the
             two worlds' scores: for a mixture judged on both the mixture and the paper's
             protocol. validation.csv gains the ``paper_*`` columns; training never sees them.
+        validate_at_start: also validate the policy the run starts with, before its first
+            training episode (after pretraining, where the algorithm has one), as the
+            validation row of episode 0: a run started from a trained model (``init_model``)
+            then keeps that model as its best unless training beats it.
         checkpoint_interval: episodes between checkpoints.
         log_interval: episodes between progress lines and update-statistics rows.
         test_episodes: test cases evaluated at the end (0 skips the final test).
@@ -82,6 +86,7 @@ class TrainConfig:
     policy_average: int = spec(1, low=1)
     select_by: str = spec("reward", choices=("reward", "success"))
     val_paper_world: bool = False
+    validate_at_start: bool = False
     checkpoint_interval: int = spec(250, low=1)
     log_interval: int = spec(50, low=1)
     test_episodes: int = spec(500, low=0, high=500)

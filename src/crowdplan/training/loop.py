@@ -381,6 +381,10 @@ class Trainer:
                     self.pretrain_stats = stats
                     self.display.write(f"pretraining done: {stats}")
                     self.checkpoint()
+            if cfg.validate_at_start and not self.episodes and not self.validations:
+                start = time.perf_counter()
+                self._validate_and_show()
+                self.train_seconds += time.perf_counter() - start
             with _stop_requests() as stop:
                 while len(self.episodes) < cfg.episodes:
                     if stop.is_set():
@@ -407,11 +411,7 @@ class Trainer:
             self._log()
             self._next_log += cfg.log_interval
         if done >= self._next_val:
-            row = self.validate()
-            self.display.write(
-                f"validation at episode {done}: success {row['success_rate']:.2f} "
-                f"reward {row['mean_reward']:+.3f}"
-            )
+            self._validate_and_show()
             # the next multiple of the interval: one step may finish several episodes
             self._next_val = (done // cfg.val_interval + 1) * cfg.val_interval
         # wall clock of rollouts, updates, logging and validation; checkpoints excluded so
@@ -420,6 +420,13 @@ class Trainer:
         if done >= self._next_ckpt:
             self.checkpoint()
             self._next_ckpt += cfg.checkpoint_interval
+
+    def _validate_and_show(self) -> None:
+        row = self.validate()
+        self.display.write(
+            f"validation at episode {row['episode']}: success {row['success_rate']:.2f} "
+            f"reward {row['mean_reward']:+.3f}"
+        )
 
     def test(self) -> dict:
         """Evaluate the best-validation model on the test cases of the validation world (the
