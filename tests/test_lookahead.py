@@ -123,6 +123,16 @@ def test_action_values_add_the_discounted_value_of_non_terminal_candidates():
     assert gamma == pytest.approx(0.9**0.25)
 
 
+@pytest.mark.filterwarnings("error")
+def test_action_values_of_an_empty_crowd_score_every_action_without_warnings():
+    config = WorldConfig(humans=0)
+    world = _busy_world(config)
+    cand = one_step(*world.observe(), config)
+    torch.manual_seed(0)
+    q = action_values(cand, make_value_network("sarl"), step_discount(0.9, config)).numpy()
+    assert q.shape == (6, N_ACTIONS) and np.isfinite(q).all()
+
+
 def test_action_values_are_the_same_in_chunks_as_in_one_call(monkeypatch):
     from crowdplan.sim import lookahead
 
