@@ -12,6 +12,7 @@ import torch
 import yaml
 from tiny_runs import flat_parameters, restored, train_tiny
 
+from crowdplan import evaluation
 from crowdplan.algos.a2c import (
     A2C_MODEL_FORMAT,
     A2CAgent,
@@ -207,8 +208,6 @@ def test_init_model_starts_from_a_trained_network_and_refuses_what_does_not_fit(
 
 
 def test_validate_at_start_scores_the_starting_model_as_episode_0(tmp_path):
-    from crowdplan import evaluation
-
     world = {**TINY["world"], "action_frame": "world", "humans": 10}
     warm = {**TINY, "world": world, "a2c": {"init_model": "lstm-a2c"}, "validate_at_start": True}
     trainer = Trainer(config_from_dict(warm), tmp_path / "warm", progress=False)
@@ -222,13 +221,14 @@ def test_validate_at_start_scores_the_starting_model_as_episode_0(tmp_path):
     expected = evaluation.summarize(records)
     assert first["success_rate"] == expected["success_rate"]["value"]
     assert first["mean_reward"] == pytest.approx(expected["mean_reward"]["value"])
-    # without the option the first validation comes after training episodes
+    # without the option the first validation comes after training, which it does not change
     cold = Trainer(
         config_from_dict({**warm, "validate_at_start": False}), tmp_path / "c", progress=False
     )
     cold.run()
     assert [row["episode"] for row in cold.validations] == [6]
     assert [row["episode"] for row in trainer.validations] == [0, 6]
+    assert torch.equal(_weights(trainer), _weights(cold))
 
 
 # ------------------------------------------------------------------ determinism and resume
