@@ -58,7 +58,8 @@ class TrainConfig:
         validate_at_start: also validate the policy the run starts with, before its first
             training episode (after pretraining, where the algorithm has one), as the
             validation row of episode 0: a run started from a trained model (``init_model``)
-            then keeps that model as its best unless training beats it.
+            then keeps that model as its best unless training beats it (with
+            ``policy_average`` > 1 the starting policy is one of the first averages' policies).
         checkpoint_interval: episodes between checkpoints.
         log_interval: episodes between progress lines and update-statistics rows.
         test_episodes: test cases evaluated at the end (0 skips the final test).
