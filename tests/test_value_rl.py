@@ -4,6 +4,7 @@ the CLI, and bad input."""
 import dataclasses
 import json
 import pickle
+import re
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from crowdplan import evaluation
 from crowdplan.algos.value_rl import load_value_rl_payload
 from crowdplan.cli import main
 from crowdplan.config import WorldConfig
-from crowdplan.models import load_model_policy, load_payload
+from crowdplan.models import load_model_policy, load_payload, resolve_model_path
 from crowdplan.nets.encoders import masked_softmax
 from crowdplan.nets.value import VALUE_NETWORKS, make_value_network
 from crowdplan.sim.world import World
@@ -218,6 +219,36 @@ def test_no_demonstrations_starts_rl_from_scratch(tmp_path):
 
 
 # ---------------------------------------------------------------------- policies and files
+def test_init_model_starts_rl_from_a_trained_network_and_refuses_what_does_not_fit(tmp_path):
+    world = {**TINY["world"], "action_frame": "world", "humans": 6}
+    warm = {
+        **TINY,
+        "world": world,
+        "validate_at_start": True,
+        "val_episodes": 2,
+        "value_rl": {**TINY["value_rl"], "il_episodes": 0, "init_model": "sarl"},
+    }
+    trainer = Trainer(config_from_dict(warm), tmp_path / "warm", progress=False)
+    shipped = load_payload(resolve_model_path("sarl"))["network"]
+    for key, value in trainer.agent.net.state_dict().items():
+        assert torch.equal(value, shipped[key]), key
+    trainer.run()
+    assert trainer.validations[0]["episode"] == 0 and trainer.agent.n_updates > 0
+    refused = [
+        ({"il_episodes": 4}, "set il_episodes: 0 to start from the model"),
+        ({"network": "lstm_rl"}, "holds a 'sarl' value network, the run trains 'lstm_rl'"),
+        ({"init_model": "lstm-a2c"}, "model file, not a value_rl model"),
+    ]
+    for change, fragment in refused:
+        params = {**warm["value_rl"], **change}
+        with pytest.raises(ValueError, match=re.escape(fragment)):
+            Trainer(config_from_dict({**warm, "value_rl": params}), tmp_path / "no", progress=False)
+    with pytest.raises(ValueError, match="acts in the world frame, the run in the goal frame"):
+        goal_frame = {**warm, "world": TINY["world"]}
+        Trainer(config_from_dict(goal_frame), tmp_path / "no", progress=False)
+    assert not (tmp_path / "no").exists()
+
+
 def test_cadrl_trained_with_one_human_evaluates_with_five(tmp_path):
     data = {**TINY, "world": {"humans": 1, "time_limit": 4.0}}
     data["value_rl"] = {**TINY["value_rl"], "network": "cadrl"}

@@ -39,7 +39,7 @@ from crowdplan.algos.buffer import ReplayBuffer
 from crowdplan.algos.imitation import collect_demonstrations, demonstration_seeds, fit_values
 from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
 from crowdplan.features import robot_centric
-from crowdplan.models import load_weights, require_format
+from crowdplan.models import initial_model_payload, load_weights, require_format
 from crowdplan.nets.value import VALUE_NETWORKS, ValueNetwork, make_value_network
 from crowdplan.policy import PolicyOutput
 from crowdplan.sim.actions import N_ACTIONS
@@ -82,6 +82,11 @@ class ValueRLConfig:
         epsilon_start, epsilon_end: exploration rate at the first RL episode and after the decay.
         epsilon_decay_episodes: episodes of the linear decay.
         target_update_episodes: episodes between copies of the value network to the target.
+        init_model: a trained value_rl model file (or shipped model name, e.g. ``sarl``) whose
+            value network starts the run instead of imitation learning (``il_episodes: 0``):
+            same network, action frame and kinematics, any crowd size; the replay buffer and
+            optimizer start empty. With ``validate_at_start`` the run keeps that model unless
+            training beats it.
     """
 
     network: str = spec("sarl", choices=VALUE_NETWORKS)
@@ -100,9 +105,15 @@ class ValueRLConfig:
     epsilon_end: float = spec(0.1, low=0.0, high=1.0)
     epsilon_decay_episodes: int = spec(4000, low=1)
     target_update_episodes: int = spec(50, low=1)
+    init_model: str | None = None
 
     def __post_init__(self) -> None:
         check_fields(self, "value_rl")
+        if self.init_model is not None and self.il_episodes > 0:
+            raise ValueError(
+                "value_rl.init_model and imitation learning (value_rl.il_episodes) both "
+                "initialise the value network: set il_episodes: 0 to start from the model"
+            )
 
 
 class ValuePolicy:
@@ -218,6 +229,8 @@ class ValueRLAgent:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(config.seed)
             self.net = make_value_network(self.params.network).to(device)
+        if self.params.init_model is not None:
+            self._load_initial_network(world)
         self.target = frozen_copy(self.net)
         self.optimizer = torch.optim.SGD(
             self.net.parameters(), lr=self.params.lr, momentum=self.params.momentum
@@ -237,12 +250,25 @@ class ValueRLAgent:
         self.values_stale = True  # the target changed: every cached value must be recomputed
         self._greedy = self.policy(config.name)
 
+    def _load_initial_network(self, world: WorldConfig) -> None:
+        payload, path = initial_model_payload(
+            self.params.init_model, "value_rl", MODEL_FORMAT, "a value_rl", world
+        )
+        network = payload["value_rl"]["network"]
+        if network != self.params.network:
+            raise ValueError(
+                f"value_rl.init_model {path} holds a {network!r} value network, the run trains "
+                f"{self.params.network!r} (value_rl.network)"
+            )
+        load_weights(self.net, payload["network"], path, f"value network {network!r}")
+
     # ------------------------------------------------------------------ imitation learning
     def pretrain(self, log: Any) -> dict[str, float] | None:
         """Imitation learning from ORCA demonstrations; nothing when ``il_episodes`` is 0."""
         p = self.params
         if p.il_episodes == 0:
-            log("value_rl: il_episodes is 0, RL starts from the random initialisation")
+            start = p.init_model or "the random initialisation"
+            log(f"value_rl: il_episodes is 0, RL starts from {start}")
             return None
         seeds = demonstration_seeds(p.il_episodes, self.config.seed)
         demos = collect_demonstrations(self.config.world, seeds, self.gamma_step, p.il_safety_space)
