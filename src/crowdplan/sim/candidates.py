@@ -177,8 +177,8 @@ def one_step(
 
     features = robot_centric(
         next_robot.reshape(e * a, 9),
-        np.broadcast_to(moved[:, None], (e, a, n, 5)).reshape(e * a, n, 5),
-        np.broadcast_to(next_mask[:, None], (e, a, n)).reshape(e * a, n),
+        np.repeat(moved, a, axis=0),  # (E * A, N, 5): each env's humans once per action
+        np.repeat(next_mask, a, axis=0),
         config.kinematics == "unicycle",
     )
     return Candidates(next_robot, moved, next_mask, rewards, outcome, features)

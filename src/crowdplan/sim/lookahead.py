@@ -90,10 +90,7 @@ def action_values(
     the network's device); the candidates, rewards and scores are computed as in float32."""
     check_precision(precision)
     device = next(value_net.parameters()).device
-    # with no humans the candidates' human arrays are read-only broadcast views: copied here
-    features = [
-        torch.from_numpy(np.require(x, requirements="CW")).to(device) for x in candidates.features
-    ]
+    features = [torch.from_numpy(np.ascontiguousarray(x)).to(device) for x in candidates.features]
     per_chunk = PAIRS_PER_CALL // max(features[1].shape[1], 1)
     per_chunk = max(STATES_ALIGNED, per_chunk - per_chunk % STATES_ALIGNED)
     chunks = zip(*(x.split(per_chunk) for x in features), strict=True)
