@@ -63,12 +63,12 @@ REFUSED = [
     # the splits have a size
     (["eval", "--episodes", "600"], "the test split has 500 cases"),
     (["eval", "--episodes", "1200"], "episodes must be in 1..500, got 1200"),
-    (["eval", "--split", "val", "--episodes", "101"], "the val split has 100 cases"),
+    (["eval", "--split", "val", "--episodes", "1001"], "the val split has 1000 cases"),
     (["eval", "--episodes", "0"], "--episodes must be >= 1"),
     (["eval", "--batch-size", "0"], "--batch-size must be >= 1"),
     (["render", "--case", "99999", "--out", "{tmp}/x.png"], "test split has cases 0..499"),
     (["render", "--case", "500", "--out", "{tmp}/x.png"], "got case 500"),
-    (["render", "--split", "val", "--case", "100", "--out", "{tmp}/x.png"], "cases 0..99"),
+    (["render", "--split", "val", "--case", "1000", "--out", "{tmp}/x.png"], "cases 0..999"),
     (["render", "--case", "-1", "--out", "{tmp}/x.png"], "--case must be >= 0"),
     # world options: typed, named, given once, not twice through another flag
     (["eval", "--option", "visible_robot=maybe"], "visible_robot"),

@@ -183,3 +183,38 @@ def test_the_replay_refuses_average_one_without_a_selection_rule(tmp_path, capsy
     with pytest.raises(SystemExit):
         averaged_validation([str(tmp_path), "--average", "1", "--out", str(tmp_path / "o")])
     assert "--average must be >= 2, or >= 1 with --select-by" in capsys.readouterr().err
+
+
+def test_the_replay_with_more_validation_cases_is_the_run_trained_with_them(tmp_path):
+    def train(name, **changes):
+        config = tmp_path / f"{name}.yaml"
+        config.write_text(yaml.safe_dump({**TINY, **changes}))
+        assert main(["train", "--config", str(config), "--out", str(tmp_path / name), "-q"]) == 0
+        return tmp_path / name
+
+    # averaged policies, as the general preset validates: the kept models are the averages
+    few = train("few", val_episodes=2, keep_validation_models=True, policy_average=2)
+    more = train("more", val_episodes=3, policy_average=2)
+    with pytest.raises(ValueError, match="already averaged policies: replay them with --average 1"):
+        averaged_validation([str(few), "--average", "2", "--out", str(tmp_path / "twice")])
+    out = tmp_path / "replayed"
+    args = [str(few), "--average", "1", "--val-episodes", "3", "--out", str(out)]
+    assert averaged_validation(args) == 0
+    assert _csv(out / "validation.csv") == _csv(more / "validation.csv")
+    assert _csv(out / "validation.csv") != _csv(few / "validation.csv")
+    replayed, trained = load_payload(out / "best_model.pt"), load_payload(more / "best_model.pt")
+    assert replayed["info"]["selected_at_episode"] == trained["info"]["selected_at_episode"]
+    for key, value in trained["actor"].items():
+        assert torch.equal(value, replayed["actor"][key])
+    written = yaml.safe_load((out / "config.yaml").read_text())
+    assert (written["val_episodes"], written["policy_average"]) == (3, 2)
+
+
+def test_validation_takes_up_to_1000_cases_apart_from_the_test_and_training_seeds():
+    seeds = evaluation.validation_seeds(1000)
+    assert seeds == list(range(1000))
+    assert evaluation.validation_seeds() == list(range(100))  # the default count
+    assert max(seeds) < min(evaluation.test_seeds())
+    assert config_from_dict({**TINY, "val_episodes": 1000}).val_episodes == 1000
+    with pytest.raises(ValueError, match="val_episodes"):
+        config_from_dict({**TINY, "val_episodes": 1001})

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from crowdplan.policy import Policy
 
 RESULT_FILES = ("summary.json", "episodes.jsonl")
-SPLIT_HELP = "test: cases 0..499 = seeds 1000..1499; val: cases 0..99 = seeds 0..99"
+SPLIT_HELP = "test: cases 0..499 = seeds 1000..1499; val: cases 0..999 = seeds 0..999"
 
 
 def _add_policy_args(parser: argparse.ArgumentParser) -> None:
@@ -247,8 +247,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--episodes",
         type=int,
         default=None,
-        help="how many cases, the split's first: 1..500 (test) or 1..100 (val) "
-        "(default: the whole split)",
+        help="how many cases, the split's first: 1..500 (test) or 1..1000 (val) "
+        "(default: 500 (test) or 100 (val), the cases runs validate on by default)",
     )
     p.add_argument(
         "--split", choices=("test", "val"), default="test", help=f"{SPLIT_HELP} (default: test)"
@@ -301,7 +301,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--case",
         type=int,
         default=0,
-        help="case k of the split: 0..499 (test, seed 1000 + k) or 0..99 (val, seed k) "
+        help="case k of the split: 0..499 (test, seed 1000 + k) or 0..999 (val, seed k) "
         "(default: %(default)s)",
     )
     p.add_argument(

@@ -21,18 +21,23 @@ from crowdplan.sim.world import OUTCOME_NAMES, RUNNING, World
 from crowdplan.social_metrics import episode_metrics, linear_jerk
 
 TEST_SEED_BASE, TEST_CASES = 1000, 500
-VAL_SEED_BASE, VAL_CASES = 0, 100
+# Validation uses the first 100 cases unless a run asks for more (val_episodes); cases 100..999
+# are also the shield's tuning seeds (crowdplan.analysis.shield_tuning): both are development
+# cases, never test cases.
+VAL_SEED_BASE, VAL_CASES, VAL_DEFAULT_CASES = 0, 1000, 100
 REPORT_GAMMA = 0.95  # discount of the "mean reward" metric: 0.95^(t * dt * v_pref)
 Z95 = 1.959963984540054
 
 
 @dataclass(frozen=True)
 class Split:
-    """A fixed set of evaluation cases: case k is the episode of seed ``seed_base + k``."""
+    """A fixed set of evaluation cases: case k is the episode of seed ``seed_base + k``;
+    ``default_cases`` (all of them unless given) are the ones played when no count is asked."""
 
     name: str
     seed_base: int
     cases: int
+    default_cases: int | None = None
 
     def seed(self, case: int) -> int:
         """Seed of case ``case``; refuses cases outside the split."""
@@ -44,8 +49,9 @@ class Split:
         return self.seed_base + case
 
     def seeds(self, episodes: int | None = None) -> list[int]:
-        """Seeds of the first ``episodes`` cases (all of them by default)."""
-        episodes = self.cases if episodes is None else episodes
+        """Seeds of the first ``episodes`` cases (by default ``default_cases``)."""
+        if episodes is None:
+            episodes = self.cases if self.default_cases is None else self.default_cases
         if not 1 <= episodes <= self.cases:
             raise ValueError(
                 f"the {self.name} split has {self.cases} cases "
@@ -58,7 +64,7 @@ class Split:
 # Training draws seeds from 2000 on (sim.env), so the two splits never meet training episodes.
 SPLITS = {
     "test": Split("test", TEST_SEED_BASE, TEST_CASES),
-    "val": Split("val", VAL_SEED_BASE, VAL_CASES),
+    "val": Split("val", VAL_SEED_BASE, VAL_CASES, VAL_DEFAULT_CASES),
 }
 
 
@@ -67,8 +73,8 @@ def test_seeds(episodes: int = TEST_CASES) -> list[int]:
     return SPLITS["test"].seeds(episodes)
 
 
-def validation_seeds(episodes: int = VAL_CASES) -> list[int]:
-    """Seeds of the validation cases (case k -> seed k, k < 100)."""
+def validation_seeds(episodes: int = VAL_DEFAULT_CASES) -> list[int]:
+    """Seeds of the first ``episodes`` validation cases (case k -> seed k, k < 1000)."""
     return SPLITS["val"].seeds(episodes)
 
 

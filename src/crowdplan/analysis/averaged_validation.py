@@ -15,9 +15,12 @@ left out; the first K - 1 rows after it average fewer than K policies, and meta.
 ``--select-by success`` replays the best-model selection of ``select_by: success`` as well (with
 ``--average 1``: the run's own policies under that rule), and ``--no-val-paper-world`` /
 ``--val-paper-world`` the selection without / with the paper's world beside the run's own
-(``val_paper_world``). The kept models of a run with ``policy_average: K`` are already the
-averaged policies: replay them with ``--average 1``, which validates nothing again where the
-run's validation.csv holds the columns the replay needs (seconds, not minutes per run).
+(``val_paper_world``), and ``--val-episodes N`` the run validated on its first N validation
+cases instead of the run's own count (seeds 0..N-1; more cases tell closer policies apart).
+The kept models of a run with ``policy_average: K`` are already the averaged policies: such a
+run is replayed with ``--average 1`` only (the folder written keeps ``policy_average: K``), which
+validates nothing again where the run's validation.csv holds the columns the replay needs on the
+same cases (seconds, not minutes per run).
 """
 
 from __future__ import annotations
@@ -60,17 +63,18 @@ def validation_models(run: Path) -> list[tuple[int, Path]]:
 
 
 def replay(
-    run: Path, average: int, config: TrainConfig
+    run: Path, average: int, config: TrainConfig, same_cases: bool = True
 ) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
     """Validation rows of the averaged policies and the best model (by the config's
     ``select_by``, the first of equals, as the training loop keeps it).
 
     With ``average`` 1 each kept model is the policy the run validated, so where the run's
-    validation.csv holds every column this validation writes, its rows are taken as they are
-    instead of validating again (the same numbers: validation is deterministic)."""
+    validation.csv holds every column this validation writes, on the same cases (``same_cases``),
+    its rows are taken as they are instead of validating again (the same numbers: validation is
+    deterministic)."""
     own_rows = {int(row["episode"]): row for row in _read_csv(run / "validation.csv")}
     columns = validation_columns(config)
-    reuse = average == 1 and all(row.keys() >= set(columns) for row in own_rows.values())
+    reuse = same_cases and average == 1 and all(row.keys() >= set(columns) for row in own_rows.values())
     recent: list[dict[str, Any]] = []
     rows, best, best_score = [], None, None
     for episode, path in validation_models(run):
@@ -99,20 +103,27 @@ def write_averaged_run(
     out: Path,
     select_by: str | None = None,
     val_paper_world: bool | None = None,
+    val_episodes: int | None = None,
 ) -> list[dict[str, Any]]:
-    """The run folder ``policy_average: average`` (and ``select_by`` and ``val_paper_world``,
-    where given) would have made, in ``out`` (new or empty)."""
+    """The run folder ``policy_average: average`` (and ``select_by``, ``val_paper_world`` and
+    ``val_episodes``, where given) would have made, in ``out`` (new or empty)."""
     if out.exists() and any(out.iterdir()):
         raise ValueError(f"{out} is not empty; give a new folder so that nothing is overwritten")
     saved = load_config(run / "config.yaml", legacy_defaults=True)
+    if saved.policy_average > 1 and average != 1:
+        raise ValueError(
+            f"{run} trained with policy_average: {saved.policy_average}, so its kept models "
+            "are already averaged policies: replay them with --average 1"
+        )
     config = dataclasses.replace(
         saved,
-        policy_average=average,
+        policy_average=max(average, saved.policy_average),
         keep_validation_models=False,
         select_by=select_by or saved.select_by,
         val_paper_world=saved.val_paper_world if val_paper_world is None else val_paper_world,
+        val_episodes=val_episodes or saved.val_episodes,
     )
-    rows, best = replay(run, average, config)
+    rows, best = replay(run, average, config, config.val_episodes == saved.val_episodes)
     out.mkdir(parents=True, exist_ok=True)
     for name in ("episodes.csv", "updates.csv"):
         if (run / name).is_file():  # updates.csv is written from the first logged update on
@@ -125,9 +136,10 @@ def write_averaged_run(
     meta = json.loads((run / "meta.json").read_text())
     meta["averaged_validation"] = {
         "from_run": str(run),
-        "policy_average": average,
+        "policy_average": config.policy_average,
         "select_by": config.select_by,
         "val_paper_world": config.val_paper_world,
+        "val_episodes": config.val_episodes,
         "validations_left_out": [
             int(r["episode"])
             for r in _read_csv(run / "validation.csv")
@@ -137,6 +149,7 @@ def write_averaged_run(
         f"--average {average}"
         + (f" --select-by {select_by}" if select_by is not None else "")
         + {None: "", True: " --val-paper-world", False: " --no-val-paper-world"}[val_paper_world]
+        + (f" --val-episodes {val_episodes}" if val_episodes is not None else "")
         + f" --out {out}",
     }
     write_json(out / "meta.json", meta)
@@ -167,18 +180,23 @@ def main(argv: list[str] | None = None) -> int:
         action=argparse.BooleanOptionalAction,
         help="validate (and select) in the paper's world too, or not (default: as the run did)",
     )
+    parser.add_argument(
+        "--val-episodes",
+        type=int,
+        help="validation cases per validation, 1..1000 (default: as the run did)",
+    )
     parser.add_argument("--out", type=Path, required=True, help="new run folder to write")
     args = parser.parse_args(argv)
-    lowest = 1 if args.select_by is not None or args.val_paper_world is not None else 2
+    changed = (args.select_by, args.val_paper_world, args.val_episodes)
+    lowest = 1 if any(option is not None for option in changed) else 2
     if args.average < lowest:
         parser.error(
-            f"--average must be >= 2, or >= 1 with --select-by or --[no-]val-paper-world "
-            f"(1 alone is the run itself), "
-            f"got {args.average}"
+            f"--average must be >= 2, or >= 1 with --select-by, --[no-]val-paper-world or "
+            f"--val-episodes (1 alone is the run itself), got {args.average}"
         )
     live = {int(r["episode"]): r for r in _read_csv(args.run / "validation.csv")}
     rows = write_averaged_run(
-        args.run, args.average, args.out, args.select_by, args.val_paper_world
+        args.run, args.average, args.out, args.select_by, args.val_paper_world, args.val_episodes
     )
     print("| episode | success, own policy | success, averaged | reward, own | reward, averaged |")
     print("|---:|---:|---:|---:|---:|")

@@ -31,7 +31,8 @@ class TrainConfig:
         episodes: training episodes.
         num_envs: environments stepped together; each env step is one transition per env.
         val_interval: episodes between validations on the validation cases.
-        val_episodes: validation cases per validation (the validation split has 100).
+        val_episodes: validation cases per validation, the split's first (seeds 0..999; more
+            than the default 100 tell closer policies apart: docs/training.md section 11).
         val_humans: humans in the validation worlds (default: the training world's). For a
             planner judged with more humans than it trains with, e.g. CADRL (1 human in
             training, 5 in the paper's tests), so that best-model selection sees that world.
@@ -80,7 +81,7 @@ class TrainConfig:
     episodes: int = spec(10000, low=1)
     num_envs: int = spec(8, low=1)
     val_interval: int = spec(500, low=1)
-    val_episodes: int = spec(100, low=1, high=100)
+    val_episodes: int = spec(100, low=1, high=1000)
     val_humans: int | None = None
     keep_validation_models: bool = False
     keep_validation_networks: bool = False
