@@ -9,7 +9,7 @@ of the 81 actions nearest to ORCA's command, so that the demonstrations are tran
 discrete-action agent could have made (DSAC's warm start, :mod:`crowdplan.algos.dsac_agent`).
 
 Demonstration episodes use their own seeds, ``DEMO_SEED_BASE + 100000 * run_seed + k``, disjoint
-from the test (1000..1499), validation (0..99) and training (2000, 2001, ...) episodes.
+from the test (1000..1499), validation (0..999) and training (2000, 2001, ...) episodes.
 """
 
 from __future__ import annotations

@@ -74,7 +74,8 @@ def replay(
     deterministic)."""
     own_rows = {int(row["episode"]): row for row in _read_csv(run / "validation.csv")}
     columns = validation_columns(config)
-    reuse = same_cases and average == 1 and all(row.keys() >= set(columns) for row in own_rows.values())
+    complete = all(row.keys() >= set(columns) for row in own_rows.values())
+    reuse = same_cases and average == 1 and complete
     recent: list[dict[str, Any]] = []
     rows, best, best_score = [], None, None
     for episode, path in validation_models(run):
@@ -198,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = write_averaged_run(
         args.run, args.average, args.out, args.select_by, args.val_paper_world, args.val_episodes
     )
-    print("| episode | success, own policy | success, averaged | reward, own | reward, averaged |")
+    print("| episode | success, run | success, replayed | reward, run | reward, replayed |")
     print("|---:|---:|---:|---:|---:|")
     for row in rows:
         own = live[row["episode"]]

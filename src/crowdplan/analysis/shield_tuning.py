@@ -4,11 +4,13 @@
         --out results/shield_tuning/lsa-dsac.json
 
 Every horizon (0: no shield) plays the model in tuning worlds over the seeds 100..999, which lie
-between the validation cases (0..99) and the test cases (1000..1499) and which training never
-draws (it starts at 2000). The worlds are the test worlds' settings except that replayed
-pedestrians come from the development scenes eth and hotel: the held-out scenes (zara1, zara2,
-univ) are never used to choose anything. Writes one JSON file of success, collision and
-timeout rates and the time to goal per world and horizon, and prints them as a Markdown table.
+between the default validation cases (0..99) and the test cases (1000..1499) and which training
+never draws (it starts at 2000); a run that validates on more than 100 cases (``val_episodes``)
+selects on some of them too: both are development cases, never test cases. The worlds are the
+test worlds' settings except that replayed pedestrians come from the development scenes eth and
+hotel: the held-out scenes (zara1, zara2, univ) are never used to choose anything. Writes one
+JSON file of success, collision and timeout rates and the time to goal per world and horizon,
+and prints them as a Markdown table.
 """
 
 from __future__ import annotations
