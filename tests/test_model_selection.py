@@ -185,7 +185,7 @@ def test_the_replay_refuses_average_one_without_a_selection_rule(tmp_path, capsy
     assert "--average must be >= 2, or >= 1 with --select-by" in capsys.readouterr().err
 
 
-def test_the_replay_with_more_validation_cases_is_the_run_trained_with_them(tmp_path):
+def test_the_replay_with_more_validation_cases_is_the_run_trained_with_them(tmp_path, capsys):
     def train(name, **changes):
         config = tmp_path / f"{name}.yaml"
         config.write_text(yaml.safe_dump({**TINY, **changes}))
@@ -195,8 +195,9 @@ def test_the_replay_with_more_validation_cases_is_the_run_trained_with_them(tmp_
     # averaged policies, as the general preset validates: the kept models are the averages
     few = train("few", val_episodes=2, keep_validation_models=True, policy_average=2)
     more = train("more", val_episodes=3, policy_average=2)
-    with pytest.raises(ValueError, match="already averaged policies: replay them with --average 1"):
+    with pytest.raises(SystemExit):
         averaged_validation([str(few), "--average", "2", "--out", str(tmp_path / "twice")])
+    assert "already averaged policies: replay them with --average 1" in capsys.readouterr().err
     out = tmp_path / "replayed"
     args = [str(few), "--average", "1", "--val-episodes", "3", "--out", str(out)]
     assert averaged_validation(args) == 0
@@ -206,6 +207,13 @@ def test_the_replay_with_more_validation_cases_is_the_run_trained_with_them(tmp_
     assert replayed["info"]["selected_at_episode"] == trained["info"]["selected_at_episode"]
     for key, value in trained["actor"].items():
         assert torch.equal(value, replayed["actor"][key])
+    too_many = tmp_path / "too_many"
+    with pytest.raises(SystemExit):
+        averaged_validation(
+            [str(few), "--average", "1", "--val-episodes", "1001", "--out", str(too_many)]
+        )
+    assert "val_episodes must be >= 1 and <= 1000, got 1001" in capsys.readouterr().err
+    assert not too_many.exists()
     written = yaml.safe_load((out / "config.yaml").read_text())
     assert (written["val_episodes"], written["policy_average"]) == (3, 2)
 

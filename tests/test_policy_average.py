@@ -102,19 +102,21 @@ def test_a_stopped_run_resumes_with_the_policies_it_was_averaging(tmp_path, monk
     assert len(stopped.validations) == 2 and rewards(resumed) == rewards(straight)
 
 
-def test_replay_refuses_a_run_without_validation_models_and_a_used_folder(tmp_path):
+def test_replay_refuses_a_run_without_validation_models_and_a_used_folder(tmp_path, capsys):
     _clitrain_tiny(TINY, tmp_path, "plain", episodes=2)
-    with pytest.raises(ValueError, match="keep_validation_models"):
+    with pytest.raises(SystemExit):
         averaged_validation(
             [str(tmp_path / "plain"), "--average", "2", "--out", str(tmp_path / "x")]
         )
+    assert "train the run with keep_validation_models: true" in capsys.readouterr().err
     _clitrain_tiny(TINY, tmp_path, "kept", episodes=2, keep_validation_models=True)
     (tmp_path / "used").mkdir()
     (tmp_path / "used" / "notes.txt").write_text("mine")
-    with pytest.raises(ValueError, match="not empty"):
+    with pytest.raises(SystemExit):
         averaged_validation(
             [str(tmp_path / "kept"), "--average", "2", "--out", str(tmp_path / "used")]
         )
+    assert "is not empty; give a new folder" in capsys.readouterr().err
     assert (tmp_path / "used" / "notes.txt").read_text() == "mine"
 
 

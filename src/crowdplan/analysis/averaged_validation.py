@@ -196,9 +196,17 @@ def main(argv: list[str] | None = None) -> int:
             f"--val-episodes (1 alone is the run itself), got {args.average}"
         )
     live = {int(r["episode"]): r for r in _read_csv(args.run / "validation.csv")}
-    rows = write_averaged_run(
-        args.run, args.average, args.out, args.select_by, args.val_paper_world, args.val_episodes
-    )
+    try:
+        rows = write_averaged_run(
+            args.run,
+            args.average,
+            args.out,
+            args.select_by,
+            args.val_paper_world,
+            args.val_episodes,
+        )
+    except ValueError as error:  # a bad option or folder: say what, not where in the code
+        parser.error(str(error))
     print("| episode | success, run | success, replayed | reward, run | reward, replayed |")
     print("|---:|---:|---:|---:|---:|")
     for row in rows:
