@@ -2,6 +2,7 @@
 on resume from older checkpoints, and in the offline replay."""
 
 import dataclasses
+import json
 import math
 
 import pytest
@@ -195,6 +196,7 @@ def test_the_replay_with_more_validation_cases_is_the_run_trained_with_them(tmp_
     # averaged policies, as the general preset validates: the kept models are the averages
     few = train("few", val_episodes=2, keep_validation_models=True, policy_average=2)
     more = train("more", val_episodes=3, policy_average=2)
+    assert json.loads((more / "meta.json").read_text())["validation_seeds"] == [0, 2]
     with pytest.raises(SystemExit):
         averaged_validation([str(few), "--average", "2", "--out", str(tmp_path / "twice")])
     assert "already averaged policies: replay them with --average 1" in capsys.readouterr().err

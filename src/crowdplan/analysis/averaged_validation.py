@@ -118,7 +118,7 @@ def write_averaged_run(
         )
     config = dataclasses.replace(
         saved,
-        policy_average=max(average, saved.policy_average),
+        policy_average=saved.policy_average if saved.policy_average > 1 else average,
         keep_validation_models=False,
         select_by=select_by or saved.select_by,
         val_paper_world=saved.val_paper_world if val_paper_world is None else val_paper_world,

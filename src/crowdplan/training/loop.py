@@ -260,13 +260,14 @@ class Trainer:
     def meta(self) -> dict[str, Any]:
         """What meta.json says about the run so far."""
         done = len(self.episodes)
+        validation_seeds = evaluation.validation_seeds(self.config.val_episodes)
         return {
             "name": self.config.name,
             "algo": self.config.algo,
             "seed": self.config.seed,
             "git": self.code_version,
             "train_episode_seeds": [TRAIN_SEED_BASE, TRAIN_SEED_BASE + done - 1] if done else [],
-            "validation_seeds": evaluation.validation_seeds(self.config.val_episodes)[::99],
+            "validation_seeds": [validation_seeds[0], validation_seeds[-1]],
             "episodes": done,
             "episodes_budget": self.config.episodes,
             "env_steps": self.env_steps,
