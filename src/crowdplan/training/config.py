@@ -11,6 +11,7 @@ import yaml
 
 from crowdplan.algos.registry import ALGORITHMS, get_algorithm
 from crowdplan.config import WorldConfig, check_fields, from_dict, spec, to_dict
+from crowdplan.evaluation import VAL_CASES, VAL_DEFAULT_CASES
 from crowdplan.nets.encoders import EncoderConfig
 
 # Keys that lived at the top level before they moved into the DSAC section; configs and
@@ -81,7 +82,7 @@ class TrainConfig:
     episodes: int = spec(10000, low=1)
     num_envs: int = spec(8, low=1)
     val_interval: int = spec(500, low=1)
-    val_episodes: int = spec(100, low=1, high=1000)
+    val_episodes: int = spec(VAL_DEFAULT_CASES, low=1, high=VAL_CASES)
     val_humans: int | None = None
     keep_validation_models: bool = False
     keep_validation_networks: bool = False
