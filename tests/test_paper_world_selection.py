@@ -75,6 +75,9 @@ def test_bad_input_is_refused_before_anything_is_written(tmp_path, capsys):
     with pytest.raises(SystemExit):
         paper_world_selection([str(run), "--val-episodes", "0", "--out", str(out)])
     assert "--val-episodes must be 1..1000, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        paper_world_selection([str(run), "--min-own-success", "95", "--out", str(out)])
+    assert "--min-own-success is a success rate in 0..1, got 95.0" in capsys.readouterr().err
     assert not out.exists()
     out.mkdir()
     (out / "old.md").write_text("kept")

@@ -140,6 +140,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not 1 <= args.val_episodes <= evaluation.VAL_CASES:
         parser.error(f"--val-episodes must be 1..{evaluation.VAL_CASES}, got {args.val_episodes}")
+    if not 0.0 <= args.min_own_success <= 1.0:
+        parser.error(f"--min-own-success is a success rate in 0..1, got {args.min_own_success}")
     if args.out.exists() and any(args.out.iterdir()):
         parser.error(f"--out {args.out} is not empty: give a new folder")
     for run in args.runs:
