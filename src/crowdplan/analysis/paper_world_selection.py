@@ -13,7 +13,7 @@ of the paper's world, the network alone, as ``make publish RUN=... EVAL_ARGS=--d
 tests a run's own best model.
 
     python -m crowdplan.analysis.paper_world_selection runs/<run> ... --val-episodes 1000 \
-        --test --out results/<name>
+        --test --out runs/<name>
 
 Writes, per run, ``OUT/<run>/kept.csv`` (one row per kept policy: its success in the run's own
 validation and its metrics on the paper world's validation cases), ``OUT/<run>/best_model.pt``
@@ -56,7 +56,7 @@ def kept_policy_rows(run: Path, val_episodes: int) -> list[dict[str, Any]]:
     """One row per kept validation policy of ``run``: its metrics on the first
     ``val_episodes`` validation cases in the paper's world."""
     config = load_config(run / "config.yaml")
-    world = config.validation_world().paper_world()
+    world = config.world.paper_world()
     seeds = evaluation.validation_seeds(val_episodes)
     with open(run / "validation.csv", newline="") as f:
         own = {int(row["episode"]): float(row["success_rate"]) for row in csv.DictReader(f)}
