@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import io
 import shutil
 from pathlib import Path
 from typing import Any
@@ -40,32 +39,28 @@ from crowdplan.io import atomic_write
 from crowdplan.models import load_payload
 from crowdplan.training.config import load_config
 from crowdplan.training.policy_average import payload_policy
+from crowdplan.training.run_logs import write_csv
 
-COLUMNS = (
-    "episode",
-    "own_success_rate",
-    "success_rate",
-    "collision_rate",
-    "time_to_goal",
-    "mean_reward",
-)
+METRICS = ("success_rate", "collision_rate", "time_to_goal", "mean_reward")
 TARGET = 0.99  # the seed target on the paper's circle (docs/training.md section 9)
 
 
-def kept_policy_rows(run: Path, val_episodes: int) -> list[dict[str, Any]]:
-    """One row per kept validation policy of ``run``: its metrics on the first
-    ``val_episodes`` validation cases in the paper's world."""
+def kept_policy_rows(
+    run: Path, models: list[tuple[int, Path]], val_episodes: int
+) -> list[dict[str, Any]]:
+    """One row per kept validation policy of ``run`` (``models``: its ``(episode, path)``
+    pairs): its metrics on the first ``val_episodes`` validation cases in the paper's world."""
     config = load_config(run / "config.yaml")
     world = config.world.paper_world()
     seeds = evaluation.validation_seeds(val_episodes)
     with open(run / "validation.csv", newline="") as f:
         own = {int(row["episode"]): float(row["success_rate"]) for row in csv.DictReader(f)}
     rows = []
-    for episode, path in validation_models(run):
+    for episode, path in models:
         policy = payload_policy(load_payload(path), config.name)
         summary = evaluation.summarize(evaluation.run_episodes(policy, world, seeds))
         row = {"episode": episode, "own_success_rate": own[episode]}
-        rows.append(row | {k: summary[k]["value"] for k in COLUMNS[2:]})
+        rows.append(row | {k: summary[k]["value"] for k in METRICS})
     return rows
 
 
@@ -88,14 +83,6 @@ def evaluate_on_test(run: Path, path: Path, out: Path) -> dict[str, Any]:
     meta = {"model": str(path), "split": "test"}
     evaluation.write_results(out, summary, records, meta)
     return summary
-
-
-def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    text = io.StringIO()
-    writer = csv.DictWriter(text, fieldnames=COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    writer.writerows(rows)
-    atomic_write(path, lambda f: f.write(text.getvalue()))
 
 
 def _summary_line(
@@ -162,11 +149,12 @@ def main(argv: list[str] | None = None) -> int:
     ]
     torch.set_num_threads(1)  # small networks: one thread each, as every crowdplan command
     for run in args.runs:
-        rows = kept_policy_rows(run, args.val_episodes)
-        _write_csv(args.out / run.name / "kept.csv", rows)
+        models = validation_models(run)
+        rows = kept_policy_rows(run, models, args.val_episodes)
+        write_csv(args.out / run.name / "kept.csv", rows)
         chosen = select(rows, args.min_own_success)
         model = args.out / run.name / "best_model.pt"
-        shutil.copyfile(dict(validation_models(run))[chosen["episode"]], model)
+        shutil.copyfile(dict(models)[chosen["episode"]], model)
         test = evaluate_on_test(run, model, args.out / run.name / "test") if args.test else None
         lines.append(_summary_line(run, rows, chosen, test))
         print(lines[-1], flush=True)
