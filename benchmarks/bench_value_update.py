@@ -20,6 +20,12 @@ A second table (``--threads N``, N > 1) times crowdplan's update on one torch th
 wall clock this time (the CPU time of N threads adds up), alternating the two settings within
 each round; the rounds' medians and the ratio. Only meaningful on an otherwise idle machine with
 N free cores.
+
+``--compile`` adds a table: the same cached update with the value network's forward pass and
+the loss compiled by ``torch.compile`` (inductor: the element-wise layers fused into C++ kernels
+around the matmuls; compiled once before the timing) against eager, on one thread by CPU time and,
+with ``--threads N``, on N threads by wall clock. It answers whether compiling would shorten
+SARL's training; training itself stays eager.
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
-from thread_timing import ratio_text, seconds_on_threads  # noqa: E402
+from thread_timing import cpu_seconds, ratio_text, seconds_on_threads  # noqa: E402
 
 from crowdplan.algos.registry import get_algorithm  # noqa: E402
 from crowdplan.features import robot_centric  # noqa: E402
@@ -87,6 +93,71 @@ def cached_updates(agent, updates: int) -> None:
     agent.update()
 
 
+def eager_loss(agent):
+    """The update's loss as ``ValueRLAgent.update`` computes it."""
+
+    def loss(robot, humans, mask, target):
+        value, _ = agent.net(robot, humans, mask)
+        return F.mse_loss(value, target)
+
+    return loss
+
+
+def updates_with(agent, loss, updates: int) -> None:
+    """``updates`` cached updates as ``ValueRLAgent.update`` makes them, with ``loss`` as the
+    forward pass and loss."""
+    for _ in range(updates):
+        index = agent.buffer.sample_index(agent.params.batch_size)
+        batch = agent.buffer.gather(index, ("robot", "humans", "mask", "reward", "done"))
+        next_value = torch.from_numpy(agent.next_values[index])
+        target = batch["reward"] + agent.gamma_step * (1.0 - batch["done"]) * next_value
+        value_loss = loss(batch["robot"], batch["humans"], batch["mask"], target)
+        agent.optimizer.zero_grad()
+        value_loss.backward()
+        agent.optimizer.step()
+
+
+def print_compile_table(agent, threads: int, updates: int, repeats: int) -> None:
+    """ms per cached update, eager against the forward pass and loss compiled."""
+    eager = eager_loss(agent)
+    compiled = torch.compile(eager, dynamic=False)
+    updates_with(agent, compiled, 5)  # compiles the forward and the backward graph
+    rows = [
+        (
+            cpu_seconds(lambda: updates_with(agent, eager, updates), 1),
+            cpu_seconds(lambda: updates_with(agent, compiled, updates), 1),
+        )
+        for _ in range(repeats)
+    ]
+    print()
+    print(
+        f"# the update with its forward pass and loss compiled, ms per update (median of {repeats})"
+    )
+    print("| timing | eager | compiled | ratio |")
+    print("|---|---|---|---|")
+    eager_s, compiled_s = np.median(np.array(rows), axis=0) / updates
+    print(
+        f"| CPU time, 1 thread | {eager_s * 1e3:.3f} | {compiled_s * 1e3:.3f} "
+        f"| {ratio_text(eager_s, compiled_s)} |"
+    )
+    if threads > 1:
+        torch.set_num_threads(threads)
+        walls = []
+        for _ in range(repeats):
+            row = []
+            for loss in (eager, compiled):
+                start = time.perf_counter()
+                updates_with(agent, loss, updates)
+                row.append((time.perf_counter() - start) / updates)
+            walls.append(row)
+        torch.set_num_threads(1)
+        eager_s, compiled_s = np.median(np.array(walls), axis=0)
+        print(
+            f"| wall clock, {threads} threads | {eager_s * 1e3:.3f} | {compiled_s * 1e3:.3f} "
+            f"| {ratio_text(eager_s, compiled_s)} |"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--network", default="sarl", choices=["cadrl", "lstm_rl", "sarl"])
@@ -96,6 +167,9 @@ def main() -> None:
     parser.add_argument("--buffer", type=int, default=100_000)
     parser.add_argument(
         "--threads", type=int, default=1, help="also time the update on this many torch threads"
+    )
+    parser.add_argument(
+        "--compile", action="store_true", help="also time the update with torch.compile (above)"
     )
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -142,6 +216,8 @@ def main() -> None:
     )
     if args.threads > 1:
         print_threads_table(agent, args.threads, args.updates, args.repeats)
+    if args.compile:
+        print_compile_table(agent, args.threads, args.updates, args.repeats)
 
 
 def print_threads_table(agent, threads: int, updates: int, repeats: int) -> None:

@@ -83,11 +83,18 @@ def test_bench_train_resume_from_runs_of_two_algorithms(tmp_path):
 
 def test_bench_value_update_quick():
     args = ["--network", "cadrl", "--humans", "2", "--updates", "3", "--repeats", "1"]
-    result = _run_bench("bench_value_update.py", *args, "--buffer", "500", "--threads", "2")
+    extra = ["--buffer", "500", "--threads", "2", "--compile"]
+    result = _run_bench("bench_value_update.py", *args, *extra)
     assert "| reference: target forward per batch |" in result.stdout
     assert re.search(r"\| \d+\.\d\dx (faster|slower) \|", result.stdout)
-    threads_rows = result.stdout.split("1 and 2 torch threads")[1].strip().splitlines()[3:]
+    threads_rows = result.stdout.split("1 and 2 torch threads")[1].split("#")[0]
+    threads_rows = threads_rows.strip().splitlines()[3:]
     assert [row.split("|")[1].strip() for row in threads_rows] == ["1", "2"]
+    compile_rows = result.stdout.split("loss compiled")[1].strip().splitlines()[3:]
+    assert [row.split("|")[1].strip() for row in compile_rows] == [
+        "CPU time, 1 thread",
+        "wall clock, 2 threads",
+    ]
 
 
 def test_bench_two_cores_quick():
