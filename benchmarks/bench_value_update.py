@@ -41,7 +41,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import torch.nn.functional as F  # noqa: E402
-from thread_timing import cpu_seconds, ratio_text, seconds_on_threads  # noqa: E402
+from thread_timing import ratio_text, seconds_on_threads  # noqa: E402
 
 from crowdplan.algos.registry import get_algorithm  # noqa: E402
 from crowdplan.features import robot_centric  # noqa: E402
@@ -117,45 +117,40 @@ def updates_with(agent, loss, updates: int) -> None:
         agent.optimizer.step()
 
 
+def seconds_per_update(agent, loss, updates: int, clock) -> float:
+    """``clock`` seconds per update over ``updates`` cached updates with ``loss``."""
+    start = clock()
+    updates_with(agent, loss, updates)
+    return (clock() - start) / updates
+
+
 def print_compile_table(agent, threads: int, updates: int, repeats: int) -> None:
-    """ms per cached update, eager against the forward pass and loss compiled."""
+    """ms per cached update, eager against the forward pass and loss compiled: CPU time on one
+    thread and, with ``threads`` > 1, wall clock on ``threads`` (the two alternate each round)."""
     eager = eager_loss(agent)
     compiled = torch.compile(eager, dynamic=False)
     updates_with(agent, compiled, 5)  # compiles the forward and the backward graph
-    rows = [
-        (
-            cpu_seconds(lambda: updates_with(agent, eager, updates), 1),
-            cpu_seconds(lambda: updates_with(agent, compiled, updates), 1),
-        )
-        for _ in range(repeats)
-    ]
+    settings = [("CPU time, 1 thread", 1, time.process_time)]
+    if threads > 1:
+        settings.append((f"wall clock, {threads} threads", threads, time.perf_counter))
     print()
     print(
         f"# the update with its forward pass and loss compiled, ms per update (median of {repeats})"
     )
     print("| timing | eager | compiled | ratio |")
     print("|---|---|---|---|")
-    eager_s, compiled_s = np.median(np.array(rows), axis=0) / updates
-    print(
-        f"| CPU time, 1 thread | {eager_s * 1e3:.3f} | {compiled_s * 1e3:.3f} "
-        f"| {ratio_text(eager_s, compiled_s)} |"
-    )
-    if threads > 1:
-        torch.set_num_threads(threads)
-        walls = []
-        for _ in range(repeats):
-            row = []
-            for loss in (eager, compiled):
-                start = time.perf_counter()
-                updates_with(agent, loss, updates)
-                row.append((time.perf_counter() - start) / updates)
-            walls.append(row)
-        torch.set_num_threads(1)
-        eager_s, compiled_s = np.median(np.array(walls), axis=0)
+    for label, count, clock in settings:
+        torch.set_num_threads(count)
+        rounds = [
+            [seconds_per_update(agent, loss, updates, clock) for loss in (eager, compiled)]
+            for _ in range(repeats)
+        ]
+        eager_s, compiled_s = np.median(np.array(rounds), axis=0)
         print(
-            f"| wall clock, {threads} threads | {eager_s * 1e3:.3f} | {compiled_s * 1e3:.3f} "
+            f"| {label} | {eager_s * 1e3:.3f} | {compiled_s * 1e3:.3f} "
             f"| {ratio_text(eager_s, compiled_s)} |"
         )
+    torch.set_num_threads(1)
 
 
 def main() -> None:

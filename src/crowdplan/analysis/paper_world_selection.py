@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -58,7 +57,7 @@ def kept_policy_rows(
     rows = []
     for episode, path in models:
         policy = payload_policy(load_payload(path), config.name)
-        summary = evaluation.summarize(evaluation.run_episodes(policy, world, seeds))
+        summary = evaluation.summarize(evaluation.run_episodes(policy, world, seeds), world)
         row = {"episode": episode, "own_success_rate": own[episode]}
         rows.append(row | {k: summary[k]["value"] for k in METRICS})
     return rows
@@ -154,7 +153,8 @@ def main(argv: list[str] | None = None) -> int:
         write_csv(args.out / run.name / "kept.csv", rows)
         chosen = select(rows, args.min_own_success)
         model = args.out / run.name / "best_model.pt"
-        shutil.copyfile(dict(models)[chosen["episode"]], model)
+        chosen_bytes = dict(models)[chosen["episode"]].read_bytes()
+        atomic_write(model, lambda f, data=chosen_bytes: f.write(data), mode="wb")
         test = evaluate_on_test(run, model, args.out / run.name / "test") if args.test else None
         lines.append(_summary_line(run, rows, chosen, test))
         print(lines[-1], flush=True)
