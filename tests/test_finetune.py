@@ -106,6 +106,16 @@ def test_init_networks_continues_a_run_from_its_checkpoint_or_networks_file(tmp_
             for name, value in getattr(core, key).state_dict().items():
                 assert torch.equal(value, expected[key][name])
         assert torch.equal(core.log_alpha.detach(), expected["log_alpha"])
+    # with init_model too, the critics and temperature are the run's, the actor the model's
+    both = {"init_networks": str(tmp_path / "first"), "init_model": "lsa-dsac-paper-goal"}
+    trainer = Trainer(config_from_dict({**TINY, "dsac": both}), tmp_path / "both", progress=False)
+    core = trainer.agent.core
+    actor = load_payload(resolve_model_path("lsa-dsac-paper-goal"))["actor"]
+    for name, value in core.actor.state_dict().items():
+        assert torch.equal(value, actor[name])
+    for name, value in core.critic.state_dict().items():
+        assert torch.equal(value, expected["critic"][name])
+    assert torch.equal(core.log_alpha.detach(), expected["log_alpha"])
 
 
 def test_init_networks_and_the_networks_command_refuse_wrong_input(tmp_path, capsys):
@@ -121,9 +131,6 @@ def test_init_networks_and_the_networks_command_refuse_wrong_input(tmp_path, cap
     other = {**TINY, "encoder": {"name": "rg"}, "dsac": {"init_networks": str(tmp_path / "first")}}
     with pytest.raises(ValueError, match="has encoder"):
         Trainer(config_from_dict(other), tmp_path / "other", progress=False)
-    both = {"init_networks": str(tmp_path / "first"), "init_model": "lsa-dsac-paper-goal"}
-    with pytest.raises(ValueError, match="give one"):
-        config_from_dict({**TINY, "dsac": both})
     with pytest.raises(FileNotFoundError, match="does not exist"):
         missing = {**TINY, "dsac": {"init_networks": str(tmp_path / "nothing.pt")}}
         Trainer(config_from_dict(missing), tmp_path / "missing", progress=False)

@@ -84,7 +84,9 @@ class DSACConfig:
         init_networks: a DSAC training checkpoint (``checkpoint.pt``) or a networks file
             written from one (:func:`crowdplan.algos.dsac_networks.save_networks`) whose actor,
             critic, target critic and temperature start the run (continuing a run in another
-            world); same encoder and action frame as the run; not together with ``init_model``.
+            world); same encoder and action frame as the run. With ``init_model`` too, that
+            model's policy replaces the networks' actor (e.g. the run's selected, averaged policy
+            instead of its last one).
         actor_warmup_updates: updates during which only the critic learns (policy and
             temperature frozen), so that a fresh critic does not undo an initialised policy.
         demo_episodes: ORCA demonstration episodes (the robot executing the discrete action
@@ -173,10 +175,6 @@ class DSACConfig:
 
     def __post_init__(self) -> None:
         check_fields(self, "dsac")
-        if self.init_model is not None and self.init_networks is not None:
-            raise ValueError(
-                "dsac.init_model and dsac.init_networks both initialise the actor: give one"
-            )
         if self.bc_epochs > 0 and self.demo_episodes == 0:
             raise ValueError(
                 "dsac.bc_epochs clones the demonstrations' actions: set dsac.demo_episodes too"

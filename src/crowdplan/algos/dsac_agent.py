@@ -48,10 +48,10 @@ class DSACAgent:
         self.params = config.algo_config
         self.device = device
         self.core = DSAC(self.params, config.encoder, seed=config.seed, device=device)
-        if self.params.init_model is not None:
-            self.core.actor.load_state_dict(initial_actor_state(config))
         if self.params.init_networks is not None:
             self.core.load_networks(initial_networks(config))
+        if self.params.init_model is not None:
+            self.core.actor.load_state_dict(initial_actor_state(config))
         self.buffer = ReplayBuffer(
             self.params.buffer_size, config.world.humans, seed=config.seed + 1
         )
