@@ -40,7 +40,6 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-import torch.nn.functional as F  # noqa: E402
 from thread_timing import ratio_text, seconds_on_threads  # noqa: E402
 
 from crowdplan.algos.registry import get_algorithm  # noqa: E402
@@ -81,8 +80,7 @@ def reference_update(agent) -> None:
     with torch.no_grad():
         next_value, _ = agent.target(batch["next_robot"], batch["next_humans"], batch["next_mask"])
     target = batch["reward"] + agent.gamma_step * (1.0 - batch["done"]) * next_value
-    value, _ = agent.net(batch["robot"], batch["humans"], batch["mask"])
-    loss = F.mse_loss(value, target)
+    loss = agent.value_loss(batch["robot"], batch["humans"], batch["mask"], target)
     agent.optimizer.zero_grad()
     loss.backward()
     agent.optimizer.step()
@@ -93,43 +91,21 @@ def cached_updates(agent, updates: int) -> None:
     agent.update()
 
 
-def eager_loss(agent):
-    """The update's loss as ``ValueRLAgent.update`` computes it."""
-
-    def loss(robot, humans, mask, target):
-        value, _ = agent.net(robot, humans, mask)
-        return F.mse_loss(value, target)
-
-    return loss
-
-
-def updates_with(agent, loss, updates: int) -> None:
-    """``updates`` cached updates as ``ValueRLAgent.update`` makes them, with ``loss`` as the
-    forward pass and loss."""
-    for _ in range(updates):
-        index = agent.buffer.sample_index(agent.params.batch_size)
-        batch = agent.buffer.gather(index, ("robot", "humans", "mask", "reward", "done"))
-        next_value = torch.from_numpy(agent.next_values[index])
-        target = batch["reward"] + agent.gamma_step * (1.0 - batch["done"]) * next_value
-        value_loss = loss(batch["robot"], batch["humans"], batch["mask"], target)
-        agent.optimizer.zero_grad()
-        value_loss.backward()
-        agent.optimizer.step()
-
-
 def seconds_per_update(agent, loss, updates: int, clock) -> float:
-    """``clock`` seconds per update over ``updates`` cached updates with ``loss``."""
+    """``clock`` seconds per update over ``updates`` cached updates with ``loss`` as the agent's
+    forward pass and loss (:meth:`~crowdplan.algos.value_rl.ValueRLAgent.value_loss`)."""
+    agent.value_loss = loss
     start = clock()
-    updates_with(agent, loss, updates)
+    cached_updates(agent, updates)
     return (clock() - start) / updates
 
 
 def print_compile_table(agent, threads: int, updates: int, repeats: int) -> None:
     """ms per cached update, eager against the forward pass and loss compiled: CPU time on one
     thread and, with ``threads`` > 1, wall clock on ``threads`` (the two alternate each round)."""
-    eager = eager_loss(agent)
+    eager = agent.value_loss
     compiled = torch.compile(eager, dynamic=False)
-    updates_with(agent, compiled, 5)  # compiles the forward and the backward graph
+    seconds_per_update(agent, compiled, 5, time.perf_counter)  # compiles forward and backward
     settings = [("CPU time, 1 thread", 1, time.process_time)]
     if threads > 1:
         settings.append((f"wall clock, {threads} threads", threads, time.perf_counter))
@@ -151,6 +127,7 @@ def print_compile_table(agent, threads: int, updates: int, repeats: int) -> None
             f"| {ratio_text(eager_s, compiled_s)} |"
         )
     torch.set_num_threads(1)
+    agent.value_loss = eager
 
 
 def main() -> None:

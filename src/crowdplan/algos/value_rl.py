@@ -317,8 +317,7 @@ class ValueRLAgent:
             batch = {k: v.to(self.device) for k, v in batch.items()}
             next_value = torch.from_numpy(self.next_values[index]).to(self.device)
             target = batch["reward"] + self.gamma_step * (1.0 - batch["done"]) * next_value
-            value, _ = self.net(batch["robot"], batch["humans"], batch["mask"])
-            loss = F.mse_loss(value, target)
+            loss = self.value_loss(batch["robot"], batch["humans"], batch["mask"], target)
             self.optimizer.zero_grad()
             loss.backward()
             self.optimizer.step()
@@ -326,6 +325,13 @@ class ValueRLAgent:
             self.n_updates += 1
             stats = {"value_loss": float(loss.detach()), "epsilon": self.epsilon}
         return stats
+
+    def value_loss(
+        self, robot: torch.Tensor, humans: torch.Tensor, mask: torch.Tensor, target: torch.Tensor
+    ) -> torch.Tensor:
+        """Mean squared error of the value network against ``target`` on one batch."""
+        value, _ = self.net(robot, humans, mask)
+        return F.mse_loss(value, target)
 
     def episodes_done(self, episodes: int) -> None:
         """Advance the exploration schedule; copy the target network every
