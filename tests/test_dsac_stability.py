@@ -10,6 +10,7 @@ import torch
 from torch import nn
 
 from crowdplan.algos import dsac as dsac_module
+from crowdplan.algos.base import frozen_copy
 from crowdplan.algos.dsac import DSAC, DSACConfig
 from crowdplan.nets.encoders import EncoderConfig
 from crowdplan.nets.heads import QHead
@@ -28,6 +29,8 @@ ALL_ON = {
     "average_q": True,
     "q_clip": 0.05,
     "entropy_penalty": 0.5,
+    "anchor_weight": 0.1,
+    "init_model": "lsa-dsac-paper",  # anchor_weight needs one; DSAC itself never reads it
 }
 
 
@@ -46,7 +49,9 @@ def test_every_option_is_off_by_default():
     assert config.policy_lr == 0
     assert config.target_entropy_anneal_updates == 0
     assert not config.average_q and config.q_clip == 0 and config.entropy_penalty == 0
+    assert config.anchor_weight == 0
     agent = DSAC(config, ENCODER)
+    assert agent.anchor is None
     assert not any(isinstance(m, nn.LayerNorm) for m in agent.critic.modules())
 
 
@@ -148,6 +153,49 @@ def test_entropy_penalty_is_zero_where_the_policy_kept_its_entropy():
     assert plain.update(batch)["actor_loss"] == pytest.approx(
         penalised.update(batch)["actor_loss"], abs=1e-6
     )
+
+
+def _anchored(weight: float) -> DSAC:
+    config = DSACConfig(anchor_weight=weight, init_model="lsa-dsac-paper", lr=1e-3)
+    agent = DSAC(config, ENCODER, seed=1)
+    agent.anchor_to_actor()
+    return agent
+
+
+def test_anchor_adds_the_cross_entropy_to_the_initial_policy_to_the_policy_loss():
+    batch = small_batch(seed=9)
+    obs = (batch["robot"], batch["humans"], batch["mask"])
+    plain, anchored = DSAC(DSACConfig(lr=1e-3), ENCODER, seed=1), _anchored(0.5)
+    with torch.no_grad():  # the policy is still the anchor: the cross-entropy is its entropy
+        log_pi = torch.log_softmax(anchored.actor(*obs)[0], dim=1)
+        entropy = float(-(log_pi.exp() * log_pi).sum(dim=1).mean())
+    assert anchored.update(batch)["actor_loss"] == pytest.approx(
+        plain.update(batch)["actor_loss"] + 0.5 * entropy, abs=1e-5
+    )
+
+
+def test_anchor_holds_the_policy_near_the_initial_policy():
+    batch = small_batch(seed=10)
+    obs = (batch["robot"], batch["humans"], batch["mask"])
+    drift = {}
+    for weight in (0.0, 1.0):
+        agent = _anchored(weight) if weight else DSAC(DSACConfig(lr=1e-3), ENCODER, seed=1)
+        initial = frozen_copy(agent.actor)
+        for _ in range(30):
+            agent.update(batch)
+        with torch.no_grad():
+            p0 = torch.softmax(initial(*obs)[0], dim=1)
+            log_p = torch.log_softmax(agent.actor(*obs)[0], dim=1)
+            drift[weight] = float((p0 * (p0.log() - log_p)).sum(dim=1).mean())
+    assert drift[1.0] < 0.5 * drift[0.0]
+
+
+def test_anchor_needs_an_initial_policy():
+    with pytest.raises(ValueError, match="set dsac.init_model too"):
+        DSACConfig(anchor_weight=0.1)
+    agent = DSAC(DSACConfig(anchor_weight=0.1, init_model="lsa-dsac-paper"), ENCODER)
+    with pytest.raises(RuntimeError, match="anchor_to_actor"):
+        agent.update(small_batch())
 
 
 def test_alpha_never_goes_below_its_floor():
@@ -264,6 +312,8 @@ def test_two_thread_update_is_bitwise_identical_with_every_option(share_encoder)
     parallel = DSAC(
         DSACConfig(share_encoder=share_encoder, parallel_update=True, **ALL_ON), ENCODER, seed=4
     )
+    serial.anchor_to_actor()
+    parallel.anchor_to_actor()
     for step in range(5):
         batch = small_batch(seed=step)
         batch["reward"] = batch["reward"] * 30  # some targets outside the range
@@ -283,6 +333,7 @@ def test_two_thread_update_is_bitwise_identical_with_every_option(share_encoder)
         ({"grad_clip_norm": -1.0}, "dsac.grad_clip_norm must be >= 0.0"),
         ({"q_clip": -0.1}, "dsac.q_clip must be >= 0.0"),
         ({"entropy_penalty": -1.0}, "dsac.entropy_penalty must be >= 0.0"),
+        ({"anchor_weight": -1.0}, "dsac.anchor_weight must be >= 0.0"),
         ({"target_entropy_anneal_updates": -5}, "dsac.target_entropy_anneal_updates must be"),
         ({"return_min": 2.0, "return_max": 1.0}, "dsac.return_min (2.0) must be below"),
     ],

@@ -90,6 +90,21 @@ def test_init_model_loads_the_policy_and_checks_the_action_frame(tmp_path):
         Trainer(config, tmp_path / "other", progress=False)
 
 
+def test_anchor_is_the_initial_models_policy_while_the_actor_learns(tmp_path):
+    dsac = {"init_model": "lsa-dsac-paper-goal", "anchor_weight": 0.01}
+    dsac |= {"random_steps": 2, "learning_starts": 2}
+    trainer = Trainer(config_from_dict({**TINY, "dsac": dsac}), tmp_path / "run", progress=False)
+    expected = load_payload(resolve_model_path("lsa-dsac-paper-goal"))["actor"]
+    trainer.run()
+    core = trainer.agent.core
+    assert core.n_updates > 0
+    for key, value in core.anchor.state_dict().items():
+        assert torch.equal(value, expected[key])
+    assert not all(
+        torch.equal(value, expected[key]) for key, value in core.actor.state_dict().items()
+    )
+
+
 def test_init_networks_continues_a_run_from_its_checkpoint_or_networks_file(tmp_path):
     from crowdplan.algos.dsac_networks import NETWORK_KEYS, main
 

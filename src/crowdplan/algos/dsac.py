@@ -129,6 +129,10 @@ class DSACConfig:
             the policy loss, ``H_behaviour`` being the entropy of the policy that acted in s,
             stored with the transition (Zhou et al.'s entropy penalty: the policy's entropy may
             not move far from the one its data was collected with; 0: off).
+        anchor_weight: adds ``anchor_weight * mean_s H(pi_0(.|s), pi(.|s))``, the cross-entropy
+            of the policy against the frozen initial policy ``pi_0`` of ``init_model``, to the
+            policy loss: a fine-tune is pulled back towards the actions its initial model takes,
+            most where the critic tells the actions apart least (0: off; needs ``init_model``).
     """
 
     gamma: float = spec(0.95, low=0.0, high=1.0)
@@ -169,6 +173,7 @@ class DSACConfig:
     average_q: bool = False
     q_clip: float = spec(0.0, low=0.0)
     entropy_penalty: float = spec(0.0, low=0.0)
+    anchor_weight: float = spec(0.0, low=0.0)
 
     # may change when a run resumes: bitwise the same training either way
     RESUME_MUTABLE: ClassVar[tuple[str, ...]] = ("parallel_update",)
@@ -178,6 +183,11 @@ class DSACConfig:
         if self.bc_epochs > 0 and self.demo_episodes == 0:
             raise ValueError(
                 "dsac.bc_epochs clones the demonstrations' actions: set dsac.demo_episodes too"
+            )
+        if self.anchor_weight > 0 and self.init_model is None:
+            raise ValueError(
+                "dsac.anchor_weight pulls the policy towards the initial policy of "
+                "dsac.init_model: set dsac.init_model too, or dsac.anchor_weight to 0"
             )
         if self.cuda_graph:
             conflicts = {
@@ -303,7 +313,12 @@ class DSAC:
         self._target_params = list(self.critic_target.parameters())
         self._worker = ThreadPoolExecutor(1) if config.parallel_update else None
         self._graphed = GraphedStep(self._update_tensors) if config.cuda_graph else None
+        self.anchor: Actor | None = None
         self.n_updates = 0
+
+    def anchor_to_actor(self) -> None:
+        """Freeze a copy of the policy as it is now as the ``anchor_weight`` term's ``pi_0``."""
+        self.anchor = frozen_copy(self.actor)
 
     @property
     def alpha(self) -> float:
@@ -525,6 +540,16 @@ class DSAC:
         if behaviour_entropy is not None:
             penalty = F.mse_loss(entropy, behaviour_entropy)
             actor_loss = actor_loss + self.config.entropy_penalty * penalty
+        if self.config.anchor_weight > 0:
+            if self.anchor is None:
+                raise RuntimeError(
+                    "dsac.anchor_weight needs the initial policy: call anchor_to_actor() after "
+                    "loading it into the actor"
+                )
+            with torch.no_grad():
+                anchor_probs = torch.softmax(self.anchor(*obs)[0], dim=1)
+            cross_entropy = -(anchor_probs * log_pi).sum(dim=1).mean()
+            actor_loss = actor_loss + self.config.anchor_weight * cross_entropy
         entropy = entropy.detach()
         alpha_loss = (self.log_alpha * (entropy - self.target_entropy)).mean()
         if self.n_updates < self.config.actor_warmup_updates:

@@ -52,6 +52,8 @@ class DSACAgent:
             self.core.load_networks(initial_networks(config))
         if self.params.init_model is not None:
             self.core.actor.load_state_dict(initial_actor_state(config))
+            if self.params.anchor_weight > 0:
+                self.core.anchor_to_actor()
         self.buffer = ReplayBuffer(
             self.params.buffer_size, config.world.humans, seed=config.seed + 1
         )
