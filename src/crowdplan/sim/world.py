@@ -24,7 +24,6 @@ import numpy as np
 from crowdplan.config import WorldConfig
 from crowdplan.sim import initial_state, orca, scenarios, socialforce
 from crowdplan.sim.actions import action_table, action_velocities, check_actions
-from crowdplan.sim.orca import orca_velocities, preferred_velocities
 
 # Outcome codes, reported per environment and step.
 RUNNING, GOAL, COLLISION, TIMEOUT = 0, 1, 2, 3
@@ -643,55 +642,6 @@ class World:
         heading = theta if self.config.kinematics == "unicycle" else angle
         vel = np.stack([speed * np.cos(heading), speed * np.sin(heading)], axis=1)
         return vel, theta
-
-    def human_velocities(self, active: np.ndarray) -> np.ndarray:
-        """New human velocities from one shared ORCA solve per environment.
-
-        (The numpy statement of what ``step`` does inside its kernel when every human is a
-        present ORCA human.)
-        """
-        cfg = self.config
-        e, n = self.num_envs, cfg.humans
-        pref = preferred_velocities(self.human_pos, self.human_goal, self.human_v_pref)
-        solve = np.broadcast_to(active[:, None], (e, n))
-        if not cfg.visible_robot:
-            return orca_velocities(
-                self.human_pos,
-                self.human_vel,
-                self.human_radius + cfg.orca.radius_pad,
-                pref,
-                self.human_v_pref,
-                np.ones((e, n), dtype=bool),
-                np.ascontiguousarray(solve),
-                cfg.dt,
-                cfg.orca.neighbor_dist,
-                cfg.orca.max_neighbors,
-                cfg.orca.time_horizon,
-            )
-        # The robot joins the solve as a neighbour with its current velocity; it is never solved.
-        pos = np.concatenate([self.robot_pos[:, None], self.human_pos], axis=1)
-        vel = np.concatenate([self.robot_vel[:, None], self.human_vel], axis=1)
-        radii = (
-            np.concatenate([np.full((e, 1), cfg.robot_radius), self.human_radius], axis=1)
-            + cfg.orca.radius_pad
-        )
-        pref_all = np.concatenate([self.robot_vel[:, None], pref], axis=1)
-        speeds = np.concatenate([np.full((e, 1), cfg.robot_v_pref), self.human_v_pref], axis=1)
-        solve_all = np.concatenate([np.zeros((e, 1), dtype=bool), solve], axis=1)
-        new = orca_velocities(
-            pos,
-            vel,
-            radii,
-            pref_all,
-            speeds,
-            np.ones((e, n + 1), dtype=bool),
-            solve_all,
-            cfg.dt,
-            cfg.orca.neighbor_dist,
-            cfg.orca.max_neighbors,
-            cfg.orca.time_horizon,
-        )
-        return new[:, 1:]
 
     def step(self, actions: np.ndarray, active: np.ndarray | None = None) -> StepResult:
         """Advance every active environment by dt; inactive ones are left untouched.
