@@ -132,7 +132,8 @@ class DSACConfig:
         anchor_weight: adds ``anchor_weight * mean_s H(pi_0(.|s), pi(.|s))``, the cross-entropy
             of the policy against the frozen initial policy ``pi_0`` of ``init_model``, to the
             policy loss: a fine-tune is pulled back towards the actions its initial model takes,
-            most where the critic tells the actions apart least (0: off; needs ``init_model``).
+            most where the critic tells the actions apart least (0: off; needs ``init_model``,
+            which a resumed run reads again for it).
     """
 
     gamma: float = spec(0.95, low=0.0, high=1.0)
